@@ -1,0 +1,36 @@
+//! The `awl` command-line tool: parses arguments and hands each subcommand to its module.
+
+mod cmd;
+
+use clap::{Parser, Subcommand};
+
+/// awl: model a large workpiece from many depth views, then plan piercing poses on it.
+#[derive(Parser)]
+#[command(name = "awl", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Summarise a scan folder or a point-cloud / mesh file: views, pose sources, point counts, bounds.
+    Info(cmd::info::InfoArgs),
+    /// Simulate the rig: render a scan folder (depth, color, poses with noise) plus truth.json and cad.ply.
+    Simulate(cmd::simulate::SimulateArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(args) => cmd::info::run(&args),
+        Command::Simulate(args) => cmd::simulate::run(&args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

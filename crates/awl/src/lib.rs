@@ -1,0 +1,24 @@
+//! awl: model a large, unknown workpiece from many depth views, then plan piercing poses on it.
+//!
+//! Frames and units: transforms are `a_from_b` (maps points from frame b to frame a; `T_a_b` in
+//! files), metres and radians everywhere unless a name says otherwise. See `ARCHITECTURE.md`.
+#![deny(missing_docs)]
+
+pub mod camera;
+pub mod cloud;
+pub mod error;
+pub mod image;
+pub mod io;
+pub mod mesh;
+pub mod normals;
+pub mod registration;
+pub mod cluster;
+pub mod filter;
+pub mod segment;
+pub mod smooth;
+pub mod spatial;
+pub mod sim;
+pub mod transform;
+
+pub use cloud::PointCloud;
+pub use error::{Error, Result};

@@ -1,0 +1,227 @@
+//! Point-to-plane ICP, coarse to fine, with a robust kernel (IRLS).
+//!
+//! Each level voxel-downsamples both clouds, gates correspondences by distance (and optionally by
+//! normal angle), weights residuals with the kernel at a scale tied to the gate, and iterates
+//! Gauss-Newton steps linearised about the moved source's centroid. The metrics are defined once:
+//! - `fitness` = source points with a correspondence inside the final gate / source points (of the finest level);
+//! - `inlier_rmse_m` = sqrt(mean over those correspondences of the squared point-to-plane residual);
+//! - `conditioning` = smallest / largest eigenvalue of the final 6x6 system, rotations scaled by the
+//!   cloud's RMS radius (near 0: the geometry does not constrain some direction, e.g. a flat wall).
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+
+use super::kernel::Kernel;
+use super::solve::{StepParams, System, Target, linearise};
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::filter::voxel::{VoxelParams, downsample};
+use crate::spatial::KdIndex;
+
+/// One resolution level of the coarse-to-fine schedule.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IcpLevel {
+    /// Voxel size both clouds are down-sampled to at this level, metres (0 = no down-sampling).
+    pub voxel_m: f64,
+    /// Correspondences farther than this are ignored, metres.
+    pub max_correspondence_m: f64,
+    /// Gauss-Newton iterations at most.
+    pub max_iterations: usize,
+}
+
+/// Parameters of [`register`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IcpParams {
+    /// Levels, coarse first. Default: 10 mm voxels / 60 mm gate, then 4 / 15, then 2 / 5.
+    pub levels: Vec<IcpLevel>,
+    /// Robust kernel. Default Tukey, which gives far correspondences no weight at all.
+    pub kernel: Kernel,
+    /// Kernel scale as a fraction of the level's gate. Default 0.5.
+    pub kernel_scale_ratio: f64,
+    /// Reject correspondences whose normals differ by more than this (either sign), radians.
+    /// Used only when the source has normals. Default 60 degrees.
+    pub max_normal_angle_rad: Option<f64>,
+    /// A level has converged when a step moves less than this, metres. Default 1e-6.
+    pub convergence_translation_m: f64,
+    /// A level has converged when a step rotates less than this, radians. Default 1e-6.
+    pub convergence_rotation_rad: f64,
+}
+
+impl Default for IcpParams {
+    fn default() -> Self {
+        Self {
+            levels: vec![
+                IcpLevel { voxel_m: 0.010, max_correspondence_m: 0.060, max_iterations: 40 },
+                IcpLevel { voxel_m: 0.004, max_correspondence_m: 0.015, max_iterations: 30 },
+                IcpLevel { voxel_m: 0.002, max_correspondence_m: 0.005, max_iterations: 30 },
+            ],
+            kernel: Kernel::Tukey,
+            kernel_scale_ratio: 0.5,
+            max_normal_angle_rad: Some(60f64.to_radians()),
+            convergence_translation_m: 1e-6,
+            convergence_rotation_rad: 1e-6,
+        }
+    }
+}
+
+/// What happened at one level.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LevelStats {
+    /// Source points at this level.
+    pub source_points: usize,
+    /// Target points at this level.
+    pub target_points: usize,
+    /// Iterations run.
+    pub iterations: usize,
+    /// True when the last step was below the convergence thresholds.
+    pub converged: bool,
+    /// Fitness at the end of the level.
+    pub fitness: f64,
+    /// Inlier point-to-plane RMSE at the end of the level, metres.
+    pub inlier_rmse_m: f64,
+}
+
+/// Result of [`register`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IcpResult {
+    /// The estimated transform (maps source points into the target frame).
+    #[serde(skip)]
+    pub target_from_source: Isometry3<f64>,
+    /// True when the finest level converged.
+    pub converged: bool,
+    /// Iterations over all levels.
+    pub iterations: usize,
+    /// See the module docs.
+    pub fitness: f64,
+    /// See the module docs, metres.
+    pub inlier_rmse_m: f64,
+    /// Correspondences inside the final gate.
+    pub inliers: usize,
+    /// See the module docs.
+    pub conditioning: f64,
+    /// Per-level statistics, coarse first.
+    pub levels: Vec<LevelStats>,
+}
+
+fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> {
+    if voxel_m > 0.0 { downsample(cloud, &VoxelParams { voxel_size_m: voxel_m }) } else { Ok(cloud.clone()) }
+}
+
+fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result<()> {
+    if params.levels.is_empty() {
+        return Err(Error::invalid("ICP parameters", "no levels"));
+    }
+    if let Some(l) = params.levels.iter().find(|l| !(l.max_correspondence_m > 0.0) || !(l.voxel_m >= 0.0)) {
+        return Err(Error::invalid("ICP parameters", format!("invalid level {l:?}")));
+    }
+    if source.len() < 6 || target.len() < 6 {
+        return Err(Error::invalid("ICP input", format!("too few points (source {}, target {})", source.len(), target.len())));
+    }
+    match &target.normals {
+        Some(n) if n.len() == target.len() => Ok(()),
+        _ => Err(Error::invalid("ICP target", "point-to-plane ICP needs target normals")),
+    }
+}
+
+/// Moves the source points (and normals) by `t`, in f64.
+fn move_cloud(cloud: &PointCloud, t: &Isometry3<f64>) -> (Vec<Point3<f64>>, Option<Vec<Vector3<f64>>>) {
+    let points = cloud.points.iter().map(|p| t * p.cast::<f64>()).collect();
+    let normals = cloud.normals.as_ref().map(|ns| ns.iter().map(|n| t.rotation * n.cast::<f64>()).collect());
+    (points, normals)
+}
+
+fn centre_and_length(points: &[Point3<f64>]) -> (Vector3<f64>, f64) {
+    let n = points.len().max(1) as f64;
+    let centre = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
+    let rms = (points.iter().map(|p| (p.coords - centre).norm_squared()).sum::<f64>() / n).sqrt();
+    (centre, rms.max(1e-3))
+}
+
+/// Solves the damped normal equations; `None` when the system is singular.
+fn solve_step(sys: &System) -> Option<Vector6<f64>> {
+    let damping = 1e-9 * sys.h.trace().max(1e-12);
+    let h = sys.h + nalgebra::Matrix6::identity() * damping;
+    h.cholesky().map(|c| c.solve(&(-sys.g)))
+}
+
+fn conditioning(sys: &System) -> f64 {
+    let eig = sys.h.symmetric_eigen().eigenvalues;
+    let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| (lo.min(e), hi.max(e)));
+    if hi > 0.0 { (lo / hi).max(0.0) } else { 0.0 }
+}
+
+/// Registers `source` to `target` (which must have normals), starting from `init`.
+///
+/// # Errors
+/// [`Error::Invalid`] for empty levels, fewer than 6 points, or a target without normals.
+pub fn register(
+    source: &PointCloud,
+    target: &PointCloud,
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+) -> Result<IcpResult> {
+    check(params, source, target)?;
+    let mut t = *init;
+    let mut levels = Vec::new();
+    let mut last = None;
+    let min_cos = params.max_normal_angle_rad.map(f64::cos);
+    for level in &params.levels {
+        let src = level_cloud(source, level.voxel_m)?;
+        let tgt = level_cloud(target, level.voxel_m)?;
+        let normals = tgt.normals.as_deref().unwrap_or_default();
+        let index = KdIndex::new(&tgt.points)?;
+        let target_l = Target { points: &tgt.points, normals, index: &index };
+        let (mut iterations, mut converged) = (0, false);
+        let length = centre_and_length(&move_cloud(&src, &t).0).1;
+        let mut sys = None;
+        while iterations < level.max_iterations {
+            let (moved, moved_normals) = move_cloud(&src, &t);
+            let centre = centre_and_length(&moved).0;
+            let step = StepParams {
+                max_distance_m: level.max_correspondence_m,
+                min_normal_cos: min_cos,
+                kernel: params.kernel,
+                kernel_scale_m: params.kernel_scale_ratio * level.max_correspondence_m,
+                centre,
+                length_m: length,
+            };
+            let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step);
+            iterations += 1;
+            sys = Some((s, src.len()));
+            let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
+            let omega = Vector3::new(delta[0], delta[1], delta[2]) / length;
+            let v = Vector3::new(delta[3], delta[4], delta[5]);
+            let rotation = UnitQuaternion::from_scaled_axis(omega);
+            let about_centre = Translation3::from(centre + v) * rotation * Translation3::from(-centre);
+            t = about_centre * t;
+            if omega.norm() < params.convergence_rotation_rad && v.norm() < params.convergence_translation_m {
+                converged = true;
+                break;
+            }
+        }
+        let (s, n) = sys.unwrap_or((System::empty(), src.len()));
+        levels.push(LevelStats {
+            source_points: src.len(),
+            target_points: tgt.len(),
+            iterations,
+            converged,
+            fitness: s.inliers as f64 / n.max(1) as f64,
+            inlier_rmse_m: if s.inliers > 0 { (s.residual_sq / s.inliers as f64).sqrt() } else { f64::INFINITY },
+        });
+        last = Some(s);
+    }
+    let s = last.unwrap_or_else(System::empty);
+    let fin = levels.last().copied().ok_or_else(|| Error::invalid("ICP parameters", "no levels"))?;
+    Ok(IcpResult {
+        target_from_source: t,
+        converged: fin.converged,
+        iterations: levels.iter().map(|l| l.iterations).sum(),
+        fitness: fin.fitness,
+        inlier_rmse_m: fin.inlier_rmse_m,
+        inliers: s.inliers,
+        conditioning: conditioning(&s),
+        levels,
+    })
+}

@@ -1,0 +1,10 @@
+//! Registration: point-to-plane ICP with a robust kernel, coarse to fine.
+//!
+//! Frames: `target_from_source` maps source points into the target's frame. Units: metres, radians.
+
+pub mod icp;
+pub mod kernel;
+mod solve;
+
+pub use icp::{IcpLevel, IcpParams, IcpResult, LevelStats, register};
+pub use kernel::Kernel;

@@ -1,0 +1,110 @@
+//! One Gauss-Newton step of point-to-plane ICP: correspondences, robust weights, the 6x6 system.
+//!
+//! The sums are taken per fixed-size chunk in parallel and then added in chunk order, so the
+//! result is bit-identical whatever the number of threads.
+
+use nalgebra::{Matrix6, Point3, Vector3, Vector6};
+use rayon::prelude::*;
+
+use super::kernel::Kernel;
+use crate::spatial::KdIndex;
+
+const CHUNK: usize = 2048;
+
+/// The target of a registration level: points with unit normals and their index.
+pub(crate) struct Target<'a> {
+    pub points: &'a [Point3<f32>],
+    pub normals: &'a [nalgebra::Vector3<f32>],
+    pub index: &'a KdIndex,
+}
+
+/// Sums of one linearisation (about `centre`, rotation scaled by `1/length`).
+#[derive(Clone, Copy)]
+pub(crate) struct System {
+    pub h: Matrix6<f64>,
+    pub g: Vector6<f64>,
+    /// Correspondences within the distance gate (and normal gate).
+    pub inliers: usize,
+    /// Sum of squared point-to-plane residuals of the inliers, m².
+    pub residual_sq: f64,
+    /// Sum of weights.
+    pub weight: f64,
+}
+
+impl System {
+    /// A system with no correspondence.
+    pub fn empty() -> Self {
+        Self::zero()
+    }
+
+    fn zero() -> Self {
+        Self { h: Matrix6::zeros(), g: Vector6::zeros(), inliers: 0, residual_sq: 0.0, weight: 0.0 }
+    }
+
+    fn add(mut self, o: &System) -> Self {
+        self.h += o.h;
+        self.g += o.g;
+        self.inliers += o.inliers;
+        self.residual_sq += o.residual_sq;
+        self.weight += o.weight;
+        self
+    }
+}
+
+/// Gates and robust kernel of one step.
+#[derive(Clone, Copy)]
+pub(crate) struct StepParams {
+    pub max_distance_m: f64,
+    pub min_normal_cos: Option<f64>,
+    pub kernel: Kernel,
+    pub kernel_scale_m: f64,
+    pub centre: Vector3<f64>,
+    pub length_m: f64,
+}
+
+/// Builds the weighted normal equations for moved source points (`moved`, in the target frame,
+/// with optional moved normals).
+pub(crate) fn linearise(
+    moved: &[Point3<f64>],
+    moved_normals: Option<&[Vector3<f64>]>,
+    target: &Target<'_>,
+    p: &StepParams,
+) -> System {
+    let max_sq = (p.max_distance_m * p.max_distance_m) as f32;
+    let partial: Vec<System> = moved
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(c, chunk)| {
+            let mut sys = System::zero();
+            for (j, s) in chunk.iter().enumerate() {
+                let q = s.cast::<f32>();
+                let Some(nb) = target.index.nearest(&q) else { continue };
+                if nb.dist_sq > max_sq {
+                    continue;
+                }
+                let t = target.points[nb.index as usize].cast::<f64>();
+                let n = target.normals[nb.index as usize].cast::<f64>();
+                if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals) {
+                    if ns[c * CHUNK + j].dot(&n) < cos {
+                        continue;
+                    }
+                }
+                let r = n.dot(&(s - t));
+                let w = p.kernel.weight(r, p.kernel_scale_m);
+                sys.inliers += 1;
+                sys.residual_sq += r * r;
+                if w <= 0.0 {
+                    continue;
+                }
+                let arm = (s.coords - p.centre) / p.length_m;
+                let rot = arm.cross(&n);
+                let jac = Vector6::new(rot.x, rot.y, rot.z, n.x, n.y, n.z);
+                sys.h += w * jac * jac.transpose();
+                sys.g += w * r * jac;
+                sys.weight += w;
+            }
+            sys
+        })
+        .collect();
+    partial.iter().fold(System::zero(), |acc, s| acc.add(s))
+}

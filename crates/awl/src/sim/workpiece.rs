@@ -1,0 +1,129 @@
+//! The three simulated workpieces in their object frame (a corner of the footprint on the floor,
+//! x/y along its edges, z up): CAD mesh, tag placement and piercing targets.
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use crate::mesh::TriMesh;
+use crate::sim::SceneKind;
+use crate::sim::shapes::{Dome, cuboid, cylinder};
+
+/// A piercing target on the workpiece, object frame.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Target {
+    /// Name written to truth.json.
+    pub name: String,
+    /// Point on the surface, metres.
+    pub p: Point3<f64>,
+    /// Outward unit normal.
+    pub n: Vector3<f64>,
+}
+
+/// One workpiece: its CAD, where the cameras look, where the tag is, the targets.
+#[derive(Debug, Clone)]
+pub(crate) struct Workpiece {
+    /// The CAD mesh, object frame.
+    pub cad: TriMesh,
+    /// The point the cameras aim at, object frame.
+    pub centre: Point3<f64>,
+    /// Footprint rectangle `[x0, y0, x1, y1]` in the object frame.
+    pub footprint: [f64; 4],
+    /// Horizontal radius around `centre` that encloses the footprint, metres.
+    pub radius: f64,
+    /// Pose of the tag frame (x right, y up, z out of the face) in the object frame.
+    pub object_from_tag: Isometry3<f64>,
+    /// The tag's black-border edge, metres.
+    pub tag_size: f64,
+    /// Targets, object frame.
+    pub targets: Vec<Target>,
+}
+
+/// The tag frame at `origin` with z along the outward `normal`, y as close to `up` as possible.
+pub(crate) fn tag_frame(origin: Point3<f64>, normal: Vector3<f64>, up: Vector3<f64>) -> Isometry3<f64> {
+    let z = normal.normalize();
+    let y = (up - z * up.dot(&z)).normalize();
+    let x = y.cross(&z);
+    let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+    Isometry3::from_parts(Translation3::from(origin.coords), UnitQuaternion::from_rotation_matrix(&rotation))
+}
+
+/// The workpiece of `kind`.
+pub(crate) fn workpiece(kind: SceneKind) -> Workpiece {
+    match kind {
+        SceneKind::Box => box_workpiece(),
+        SceneKind::Shell => shell_workpiece(),
+        SceneKind::Cylinder => cylinder_workpiece(),
+    }
+}
+
+fn box_workpiece() -> Workpiece {
+    let (w, d, h) = (0.485, 0.48, 0.30);
+    Workpiece {
+        cad: cuboid(Point3::origin(), Point3::new(w, d, h)),
+        centre: Point3::new(w / 2.0, d / 2.0, h / 2.0),
+        footprint: [0.0, 0.0, w, d],
+        radius: (w * w + d * d).sqrt() / 2.0,
+        object_from_tag: tag_frame(Point3::new(w / 2.0, 0.0, h / 2.0), -Vector3::y(), Vector3::z()),
+        tag_size: 0.08,
+        targets: vec![Target {
+            name: "top-centre".into(),
+            p: Point3::new(w / 2.0, d / 2.0, h),
+            n: Vector3::z(),
+        }],
+    }
+}
+
+/// The shell's shape (also used by tests through the CAD only).
+pub(crate) const SHELL: Dome =
+    Dome { a: 0.25, b: 0.20, h: 0.35, groove_x: -0.06, groove_depth: 0.02, groove_sigma: 0.017 };
+
+fn shell_workpiece() -> Workpiece {
+    let s = SHELL;
+    let on_surface = |xc: f64, yc: f64| Point3::new(s.a + xc, s.b + yc, s.height(xc, yc));
+    let tag_at = (0.0, -0.8 * s.b);
+    Workpiece {
+        cad: s.mesh(110, 256),
+        centre: Point3::new(s.a, s.b, 0.15),
+        footprint: [0.0, 0.0, 2.0 * s.a, 2.0 * s.b],
+        radius: s.a,
+        object_from_tag: tag_frame(on_surface(tag_at.0, tag_at.1), s.normal(tag_at.0, tag_at.1), Vector3::z()),
+        tag_size: 0.09,
+        targets: vec![Target {
+            name: "groove".into(),
+            p: on_surface(s.groove_x, 0.0),
+            n: s.normal(s.groove_x, 0.0),
+        }],
+    }
+}
+
+fn cylinder_workpiece() -> Workpiece {
+    let (r, h) = (0.15, 0.70);
+    Workpiece {
+        cad: cylinder(r, r, r, h, 256),
+        centre: Point3::new(r, r, 0.35),
+        footprint: [0.0, 0.0, 2.0 * r, 2.0 * r],
+        radius: r,
+        object_from_tag: tag_frame(Point3::new(r, 0.0, 0.45), -Vector3::y(), Vector3::z()),
+        tag_size: 0.08,
+        targets: vec![Target { name: "side".into(), p: Point3::new(r, 0.0, 0.25), n: -Vector3::y() }],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tag_frames_are_right_handed_with_y_up() {
+        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder] {
+            let wp = workpiece(kind);
+            let r = wp.object_from_tag.rotation;
+            let (x, y, z) = (r * Vector3::x(), r * Vector3::y(), r * Vector3::z());
+            assert!((x.cross(&y) - z).norm() < 1e-12);
+            assert!(y.z > 0.4, "{kind:?}: y must point up, {y:?}");
+            assert!(z.y < -0.8, "{kind:?}: the tag faces -y, {z:?}");
+            assert!(x.z.abs() < 1e-12, "{kind:?}: x is horizontal");
+        }
+        let bx = workpiece(SceneKind::Box);
+        assert_eq!(bx.object_from_tag.translation.vector, Vector3::new(0.2425, 0.0, 0.15));
+    }
+}

@@ -1,0 +1,107 @@
+//! Writing a simulation as a scan folder, atomically: everything goes into a hidden sibling folder
+//! that is renamed into place at the end, so a reader never sees half a scan.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::io::image::{write_color_png, write_depth_png};
+use crate::io::ply::write_ply_mesh;
+use crate::io::scan::{ViewData, write_scan};
+use crate::io::truth::write_truth;
+use crate::io::{temp_sibling, write_atomic};
+use crate::sim::{LabelImage, Simulation};
+
+fn label_png(image: &LabelImage) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, image.width, image.height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_compression(png::Compression::Fast);
+    let written = encoder.write_header().and_then(|mut w| w.write_image_data(&image.data));
+    written.map_err(|e| Error::invalid("label PNG encoder", e.to_string()))?;
+    Ok(out)
+}
+
+fn is_non_empty_dir(dir: &Path) -> Result<bool> {
+    match fs::read_dir(dir) {
+        Ok(mut entries) => Ok(entries.next().is_some()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
+            Err(Error::invalid(dir.display().to_string(), "exists and is not a folder"))
+        }
+        Err(e) => Err(Error::io(dir, e)),
+    }
+}
+
+fn write_views(tmp: &Path, sim: &Simulation) -> Result<()> {
+    for sub in ["depth", "color", "labels"] {
+        fs::create_dir_all(tmp.join(sub)).map_err(|e| Error::io(tmp.join(sub), e))?;
+    }
+    sim.views.par_iter().enumerate().try_for_each(|(i, view)| {
+        let spec = sim.scan.views.get(i).ok_or_else(|| Error::invalid("simulation", format!("no manifest entry for view {i}")))?;
+        let ViewData::Depth { depth, color } = &spec.data else {
+            return Err(Error::invalid("simulation", format!("view {i} is not a depth view")));
+        };
+        write_depth_png(&tmp.join(depth), &view.depth)?;
+        if let Some(color) = color {
+            write_color_png(&tmp.join(color), &view.color)?;
+        }
+        let label = sim.truth.views.get(i).and_then(|t| t.label.clone()).unwrap_or_else(|| PathBuf::from(format!("labels/{i:06}.png")));
+        write_atomic(&tmp.join(label), &label_png(&view.labels)?)
+    })
+}
+
+fn write_all(tmp: &Path, sim: &Simulation) -> Result<()> {
+    fs::create_dir_all(tmp).map_err(|e| Error::io(tmp, e))?;
+    write_views(tmp, sim)?;
+    write_ply_mesh(&tmp.join(&sim.truth.cad), &sim.cad)?;
+    write_truth(tmp, &sim.truth)?;
+    let mut scan = sim.scan.clone();
+    scan.dir = tmp.to_path_buf();
+    write_scan(&scan)
+}
+
+/// Moves the finished `tmp` folder to `dir`, replacing an existing `dir` (kept until the move succeeds).
+fn swap_into_place(tmp: &Path, dir: &Path) -> Result<()> {
+    if !dir.exists() {
+        return fs::rename(tmp, dir).map_err(|e| Error::io(dir, e));
+    }
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let old = dir.with_file_name(format!(".{name}.old-{}", std::process::id()));
+    fs::rename(dir, &old).map_err(|e| Error::io(dir, e))?;
+    if let Err(e) = fs::rename(tmp, dir) {
+        let _ = fs::rename(&old, dir);
+        return Err(Error::io(dir, e));
+    }
+    fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
+}
+
+/// Writes `sim` as the scan folder `dir`: `scan.json`, `truth.json`, `cad.ply`, and `depth/`,
+/// `color/`, `labels/` PNGs. The folder appears complete or not at all.
+///
+/// # Errors
+/// [`Error::Invalid`] when `dir` exists, is not empty and `overwrite` is false (or is a file);
+/// [`Error::Io`] naming the file when writing fails (the temporary folder is removed).
+pub fn write_simulation(dir: &Path, sim: &Simulation, overwrite: bool) -> Result<()> {
+    if is_non_empty_dir(dir)? && !overwrite {
+        return Err(Error::invalid(
+            dir.display().to_string(),
+            "the output folder exists and is not empty (pass --force to replace it)",
+        ));
+    }
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    let tmp = temp_sibling(dir);
+    if tmp.exists() {
+        fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+    }
+    let result = write_all(&tmp, sim).and_then(|()| swap_into_place(&tmp, dir));
+    if result.is_err() {
+        let _ = fs::remove_dir_all(&tmp);
+    }
+    result
+}

@@ -1,0 +1,1 @@
+//! Moving-least-squares smoothing.

@@ -1,0 +1,149 @@
+//! Neighbour search over a point set: a k-d tree (kiddo) behind a small API, so the rest of awl
+//! never sees the crate's types. Distances returned are squared, metres².
+
+use std::num::NonZeroUsize;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::Point3;
+
+use crate::error::{Error, Result};
+
+/// A neighbour: index into the indexed point slice, squared distance (m²).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Neighbor {
+    /// Index of the point in the slice the index was built from.
+    pub index: u32,
+    /// Squared Euclidean distance to the query, m².
+    pub dist_sq: f32,
+}
+
+/// A static k-d tree over a slice of points.
+pub struct KdIndex {
+    tree: ImmutableKdTree<f32, 3>,
+    len: usize,
+}
+
+fn to_array(p: &Point3<f32>) -> [f32; 3] {
+    [p.x, p.y, p.z]
+}
+
+impl KdIndex {
+    /// Builds the index (in parallel on the current rayon pool; the tree is the same either way).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when the slice has more than `u32::MAX` points or a non-finite point.
+    pub fn new(points: &[Point3<f32>]) -> Result<Self> {
+        if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+            return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
+        }
+        let coords: Vec<[f32; 3]> = points.iter().map(to_array).collect();
+        let tree = ImmutableKdTree::new_from_slice(&coords)
+            .map_err(|e| Error::invalid("k-d tree", format!("cannot build: {e:?}")))?;
+        Ok(Self { tree, len: points.len() })
+    }
+
+    /// Number of indexed points.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// True when no point is indexed.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The `k` nearest points (fewer if the index is smaller), nearest first; the query point itself
+    /// is included when it is in the index.
+    pub fn knn(&self, query: &Point3<f32>, k: usize) -> Vec<Neighbor> {
+        let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
+        self.tree
+            .query(&to_array(query))
+            .nearest_n::<SquaredEuclidean<f32>>(k)
+            .execute()
+            .into_iter()
+            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
+            .collect()
+    }
+
+    /// The nearest point, or `None` for an empty index.
+    pub fn nearest(&self, query: &Point3<f32>) -> Option<Neighbor> {
+        if self.len == 0 {
+            return None;
+        }
+        let r = self.tree.query(&to_array(query)).nearest_one::<SquaredEuclidean<f32>>().execute();
+        Some(Neighbor { index: r.item, dist_sq: r.distance })
+    }
+
+    /// Every point within `radius_m` (inclusive), in no particular order.
+    pub fn within(&self, query: &Point3<f32>, radius_m: f32) -> Vec<Neighbor> {
+        if self.len == 0 {
+            return Vec::new();
+        }
+        self.tree
+            .query(&to_array(query))
+            .within::<SquaredEuclidean<f32>>(radius_m * radius_m)
+            .unsorted()
+            .execute()
+            .into_iter()
+            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
+            .collect()
+    }
+}
+
+/// Brute-force neighbour search: the oracle the k-d tree is tested against.
+pub mod brute {
+    use super::Neighbor;
+    use nalgebra::Point3;
+
+    /// The `k` nearest points, nearest first (ties by index).
+    pub fn knn(points: &[Point3<f32>], query: &Point3<f32>, k: usize) -> Vec<Neighbor> {
+        let mut all: Vec<Neighbor> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Neighbor { index: i as u32, dist_sq: (p - query).norm_squared() })
+            .collect();
+        all.sort_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
+        all.truncate(k);
+        all
+    }
+
+    /// Indices of every point within `radius_m`, ascending.
+    pub fn within(points: &[Point3<f32>], query: &Point3<f32>, radius_m: f32) -> Vec<u32> {
+        let r2 = radius_m * radius_m;
+        (0..points.len() as u32).filter(|&i| (points[i as usize] - query).norm_squared() <= r2).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    fn random_points(n: usize, seed: u64) -> Vec<Point3<f32>> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        (0..n).map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>())).collect()
+    }
+
+    #[test]
+    fn matches_brute_force() {
+        let points = random_points(5000, 7);
+        let index = KdIndex::new(&points).expect("index");
+        for q in random_points(200, 8) {
+            let got = index.knn(&q, 10);
+            let want = brute::knn(&points, &q, 10);
+            let d = |v: &[Neighbor]| v.iter().map(|n| n.dist_sq).collect::<Vec<_>>();
+            assert_eq!(d(&got), d(&want));
+            let mut within: Vec<u32> = index.within(&q, 0.08).iter().map(|n| n.index).collect();
+            within.sort_unstable();
+            assert_eq!(within, brute::within(&points, &q, 0.08));
+            assert_eq!(index.nearest(&q).map(|n| n.dist_sq), Some(want[0].dist_sq));
+        }
+    }
+
+    #[test]
+    fn empty_and_bad_input() {
+        let index = KdIndex::new(&[]).expect("empty index");
+        assert!(index.knn(&Point3::origin(), 3).is_empty() && index.nearest(&Point3::origin()).is_none());
+        assert!(KdIndex::new(&[Point3::new(f32::NAN, 0.0, 0.0)]).is_err());
+    }
+}
