@@ -16,6 +16,10 @@ struct Cli {
 enum Command {
     /// Summarise a scan folder or a point-cloud / mesh file: views, pose sources, point counts, bounds.
     Info(cmd::info::InfoArgs),
+    /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
+    Fuse(cmd::fuse::FuseArgs),
+    /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
+    Register(cmd::register::RegisterArgs),
     /// Simulate the rig: render a scan folder (depth, color, poses with noise) plus truth.json and cad.ply.
     Simulate(cmd::simulate::SimulateArgs),
 }
@@ -24,6 +28,8 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => cmd::info::run(&args),
+        Command::Fuse(args) => cmd::fuse::run(&args),
+        Command::Register(args) => cmd::register::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),
     };
     match result {

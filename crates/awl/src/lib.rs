@@ -6,18 +6,20 @@
 
 pub mod camera;
 pub mod cloud;
+pub mod cluster;
 pub mod error;
+pub mod eval;
+pub mod filter;
 pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod normals;
+pub mod pipeline;
 pub mod registration;
-pub mod cluster;
-pub mod filter;
 pub mod segment;
+pub mod sim;
 pub mod smooth;
 pub mod spatial;
-pub mod sim;
 pub mod transform;
 
 pub use cloud::PointCloud;

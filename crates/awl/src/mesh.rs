@@ -131,10 +131,10 @@ mod tests {
     fn bad_meshes_are_errors() {
         let mut cube = unit_cube();
         cube.triangles.push([0, 1, 8]);
-        assert!(cube.validate("cube").unwrap_err().to_string().contains("triangle 12"));
+        assert!(cube.validate("cube").expect_err("must fail").to_string().contains("triangle 12"));
         assert!(cube.sample_surface(10, 0).is_err());
         let flat = TriMesh { vertices: vec![Point3::origin(); 3], triangles: vec![[0, 1, 2]] };
-        assert!(flat.sample_surface(10, 0).unwrap_err().to_string().contains("area"));
+        assert!(flat.sample_surface(10, 0).expect_err("must fail").to_string().contains("area"));
         let empty = TriMesh::default();
         assert!(empty.sample_surface(10, 0).is_err());
         assert_eq!(empty.area(), 0.0);

@@ -7,9 +7,11 @@
 //! uniform, half local: the 2nd and 3rd point among the first one's nearest neighbours, so planes holding
 //! a small share of the points are still sampled) are scored on a random subsample of at most
 //! [`SUBSAMPLE_POINTS`] points; the best one is refined on all points by alternating inlier selection and
-//! a least-squares (PCA) refit. [`remove_floor`] extracts up to `max_planes` such planes in turn (each one
-//! from the points the previous ones did not explain), takes the floor among them (the plane with the
-//! fewest points below it: a box top has the floor below it) and keeps the points above the floor.
+//! a least-squares (PCA) refit until the inliers stop changing. Hypotheses and the refit must both be
+//! within the allowed tilt of `up`. [`remove_floor`] extracts up to `max_planes` such planes in turn (each
+//! one from the points the previous ones did not explain; a plane whose refit leaves the tilt is removed
+//! but is no candidate), takes the floor among them (the plane with the fewest points below it: a box top
+//! has the floor below it) and keeps the points above the floor.
 //!
 //! Everything is deterministic for a given seed: the random numbers are drawn serially, hypotheses are
 //! scored in parallel but compared by (inliers, index), and sums run over fixed chunks in a fixed order,
@@ -28,8 +30,9 @@ use crate::spatial::KdIndex;
 pub const SUBSAMPLE_POINTS: usize = 16_384;
 /// Local hypotheses draw their 2nd and 3rd point among this many nearest subsample points.
 const LOCAL_NEIGHBOURS: usize = 16;
-/// Inlier selection and refit rounds at most.
-const REFINE_ROUNDS: usize = 5;
+/// Inlier selection and refit rounds at most. Usually 2 or 3 are enough; a hypothesis bridging two
+/// parallel planes (a floor strip and a strip of the object's top) takes dozens to slide onto one of them.
+const REFINE_ROUNDS: usize = 50;
 /// Points per chunk of a deterministic parallel sum.
 const CHUNK: usize = 4096;
 
@@ -45,8 +48,8 @@ pub struct PlaneParams {
     pub iterations: usize,
     /// Seed of the ChaCha8 generator. Default 0.
     pub seed: u64,
-    /// Only hypotheses whose normal is within this angle of `up` count, radians (`None`: any plane).
-    /// Default 15 degrees: floors, not the walls or sides of the object.
+    /// Only planes whose normal is within this angle of `up` count (hypotheses and refit), radians
+    /// (`None`: any plane). Default 15 degrees: floors, not the walls or sides of the object.
     pub max_tilt_rad: Option<f64>,
     /// The world's up direction (need not be unit). Normals are returned pointing along it. Default
     /// `[0, 0, 1]`, world z.
@@ -191,15 +194,17 @@ impl Setup {
     fn hypothesis(&self, a: &Vector3<f64>, b: &Vector3<f64>, c: &Vector3<f64>) -> Option<Plane> {
         let cross = (b - a).cross(&(c - a));
         let scale = (b - a).norm_squared().max((c - a).norm_squared());
-        if !(cross.norm_squared() > 1e-12 * scale * scale) {
+        if cross.norm_squared() <= 1e-12 * scale * scale || !cross.iter().all(|v| v.is_finite()) {
             return None;
         }
         let normal = cross.normalize();
         let plane = Plane { normal, offset: -normal.dot(a) }.oriented(&self.up);
-        match self.min_cos_tilt {
-            Some(min_cos) if plane.normal.dot(&self.up) < min_cos => None,
-            _ => Some(plane),
-        }
+        self.within_tilt(&plane).then_some(plane)
+    }
+
+    /// True when the plane's normal is within the allowed tilt of `up`.
+    fn within_tilt(&self, plane: &Plane) -> bool {
+        self.min_cos_tilt.is_none_or(|min_cos| plane.normal.dot(&self.up) >= min_cos)
     }
 }
 
@@ -239,10 +244,10 @@ fn ransac(points: &[Point3<f32>], candidates: &[u32], setup: &Setup, rng: &mut C
         .collect();
     let mut best: Option<(usize, Plane)> = None;
     for (h, &count) in hypotheses.iter().zip(&counts) {
-        if let Some(p) = h {
-            if best.is_none_or(|(c, _)| count > c) {
-                best = Some((count, *p));
-            }
+        if let Some(p) = h
+            && best.is_none_or(|(c, _)| count > c)
+        {
+            best = Some((count, *p));
         }
     }
     let (_, p) = best?;
@@ -290,8 +295,9 @@ fn rms(points: &[Point3<f32>], inliers: &[u32], plane: &Plane) -> f64 {
     (partial.iter().sum::<f64>() / inliers.len() as f64).sqrt()
 }
 
-/// Alternates inlier selection among `candidates` and a least-squares refit; returns the final plane and
-/// its inliers (recomputed after the last refit).
+/// Alternates inlier selection among `candidates` and a least-squares refit until the inliers stop
+/// changing ([`REFINE_ROUNDS`] at most); returns the final plane and its inliers (recomputed after the
+/// last refit).
 fn refine(points: &[Point3<f32>], candidates: &[u32], mut plane: Plane, setup: &Setup) -> (Plane, Vec<u32>) {
     let mut inliers = inliers_of(points, candidates, &plane, setup.distance_m);
     for _ in 0..REFINE_ROUNDS {
@@ -324,7 +330,7 @@ fn plane_fit(points: &[Point3<f32>], plane: Plane, inliers: Vec<u32>) -> PlaneFi
 ///
 /// # Errors
 /// [`Error::Invalid`] for fewer than 3 or non-finite points, invalid parameters, or when no hypothesis
-/// is a plane within the allowed tilt (e.g. collinear points).
+/// is a plane within the allowed tilt (e.g. collinear points), or the best one's least-squares refit is not.
 pub fn fit_plane_ransac(points: &[Point3<f32>], params: &PlaneParams) -> Result<PlaneFit> {
     let setup = Setup::new(points, params, "plane fit")?;
     let all: Vec<u32> = (0..points.len() as u32).collect();
@@ -332,6 +338,13 @@ pub fn fit_plane_ransac(points: &[Point3<f32>], params: &PlaneParams) -> Result<
     let hypothesis = ransac(points, &all, &setup, &mut rng)
         .ok_or_else(|| Error::invalid("plane fit", "no plane within the allowed tilt of `up` (degenerate points?)"))?;
     let (plane, inliers) = refine(points, &all, hypothesis, &setup);
+    if !setup.within_tilt(&plane) {
+        let tilt = plane.normal.dot(&setup.up).clamp(-1.0, 1.0).acos().to_degrees();
+        return Err(Error::invalid(
+            "plane fit",
+            format!("the best plane's refit is {tilt:.1} deg from `up`, beyond max_tilt_rad"),
+        ));
+    }
     Ok(plane_fit(points, plane, inliers))
 }
 
@@ -376,16 +389,21 @@ pub fn remove_floor(
         if inliers.len() < min_inliers {
             break;
         }
-        let below_count = points.par_iter().filter(|p| plane.distance(p) < -setup.distance_m).count();
-        candidates.push(PlaneCandidate {
-            normal: plane.normal,
-            offset_m: plane.offset,
-            inlier_count: inliers.len(),
-            below_count,
-        });
-        planes.push(plane);
+        // A plane whose refit leaves the allowed tilt is not a candidate, but its points go all the same.
+        if setup.within_tilt(&plane) {
+            let below_count = points.par_iter().filter(|p| plane.distance(p) < -setup.distance_m).count();
+            let inlier_count = inliers.len();
+            candidates.push(PlaneCandidate { normal: plane.normal, offset_m: plane.offset, inlier_count, below_count });
+            planes.push(plane);
+        }
         let mut taken = inliers.into_iter().peekable();
-        remaining.retain(|&i| if taken.peek() == Some(&i) { taken.next().is_some() } else { true });
+        remaining.retain(|&i| {
+            let inlier = taken.peek() == Some(&i);
+            if inlier {
+                taken.next();
+            }
+            !inlier
+        });
     }
     let chosen = match object_hint {
         Some(hint) => (0..planes.len())
@@ -434,7 +452,7 @@ mod tests {
 
     /// What a point of the synthetic scene is.
     #[derive(Debug, Clone, Copy, PartialEq)]
-    enum Kind {
+    pub(super) enum Kind {
         Floor,
         /// A box point with its true height above the floor, metres.
         Box(f32),
@@ -445,7 +463,7 @@ mod tests {
     /// square floor of side `floor_side_m` (`floor_density` per m², not under the box) at z = -0.1 m,
     /// 1 mm Gaussian noise on every axis, 1 % outliers uniform in the floor's extent, 0.3 m below the
     /// floor to 0.7 m above it; shuffled.
-    fn scene(
+    pub(super) fn scene(
         floor_side_m: f32,
         floor_density: f32,
         box_density: f32,
@@ -542,7 +560,13 @@ mod tests {
         assert!((dominant.offset_m - (0.1 - 0.3)).abs() < 0.001, "dominant offset {}", dominant.offset_m);
         assert!(dominant.inliers.len() > 2 * floor_count);
         let r = remove_floor(&points, &FloorParams::default(), None).expect("floor");
-        assert!((r.floor.offset_m - 0.1).abs() < 0.001, "offset {}", r.floor.offset_m);
+        assert!(
+            (r.floor.offset_m - 0.1).abs() < 0.001,
+            "offset {}, {:?}, {} points, {floor_count} floor",
+            r.floor.offset_m,
+            r.candidates,
+            points.len()
+        );
         assert!(angle_deg(&r.floor.normal, &Vector3::z()) < 0.2);
         // A hint inside the box picks the floor; one above the box picks its top.
         let inside = remove_floor(&points, &FloorParams::default(), Some(Point3::new(0.0, 0.0, 0.05))).expect("inside");
@@ -562,11 +586,13 @@ mod tests {
         let tilt = angle_deg(&r.floor.normal, &truth);
         assert!(tilt < 0.2, "normal off by {tilt} deg");
         assert!((r.floor.offset_m - 0.1).abs() < 0.001, "offset {}", r.floor.offset_m);
+        println!("tilted floor: normal off by {tilt:.4} deg, offset error {:.2e} m", r.floor.offset_m - 0.1);
         let strict = FloorParams {
             plane: PlaneParams { max_tilt_rad: Some(5f64.to_radians()), ..Default::default() },
             ..Default::default()
         };
-        assert!(remove_floor(&points, &strict, None).is_err());
+        let r = remove_floor(&points, &strict, None);
+        assert!(r.is_err(), "{:?}", r.map(|r| (r.floor.normal, r.floor.offset_m, r.floor.inliers.len(), r.candidates)));
         let fit = fit_plane_ransac(&points, &strict.plane);
         assert!(fit.is_err(), "{:?}", fit.map(|f| f.normal));
     }
@@ -610,8 +636,10 @@ mod tests {
     #[test]
     fn bad_input() {
         let params = PlaneParams::default();
-        assert!(fit_plane_ransac(&[], &params).is_err());
-        assert!(fit_plane_ransac(&[Point3::origin(), Point3::new(1.0, 0.0, 0.0)], &params).is_err());
+        assert!(matches!(fit_plane_ransac(&[], &params), Err(Error::Invalid { .. })));
+        let two = [Point3::origin(), Point3::new(1.0, 0.0, 0.0)];
+        assert!(matches!(fit_plane_ransac(&two, &params), Err(Error::Invalid { .. })));
+        assert!(matches!(remove_floor(&two, &FloorParams::default(), None), Err(Error::Invalid { .. })));
         let line: Vec<Point3<f32>> = (0..100).map(|i| Point3::new(i as f32 * 0.01, 0.0, 0.0)).collect();
         assert!(fit_plane_ransac(&line, &PlaneParams { max_tilt_rad: None, ..params }).is_err());
         let mut square: Vec<Point3<f32>> =

@@ -74,6 +74,22 @@ impl KdIndex {
         Some(Neighbor { index: r.item, dist_sq: r.distance })
     }
 
+    /// The nearest point within `radius_m` (inclusive), or `None`. Much faster than [`KdIndex::nearest`]
+    /// for queries far from every point, since the radius prunes the search.
+    pub fn nearest_within(&self, query: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
+        if self.len == 0 {
+            return None;
+        }
+        let one = NonZeroUsize::MIN;
+        self.tree
+            .query(&to_array(query))
+            .nearest_n::<SquaredEuclidean<f32>>(one)
+            .within(radius_m * radius_m)
+            .execute()
+            .first()
+            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
+    }
+
     /// Every point within `radius_m` (inclusive), in no particular order.
     pub fn within(&self, query: &Point3<f32>, radius_m: f32) -> Vec<Neighbor> {
         if self.len == 0 {
@@ -137,6 +153,8 @@ mod tests {
             within.sort_unstable();
             assert_eq!(within, brute::within(&points, &q, 0.08));
             assert_eq!(index.nearest(&q).map(|n| n.dist_sq), Some(want[0].dist_sq));
+            let bounded = index.nearest_within(&q, 0.05).map(|n| n.dist_sq);
+            assert_eq!(bounded, (want[0].dist_sq <= 0.0025).then_some(want[0].dist_sq));
         }
     }
 

@@ -35,7 +35,9 @@ pub fn isometry_from_rows(rows: &Rows) -> Result<Isometry3<f64>, String> {
     }
     let det = r.determinant();
     if (det - 1.0).abs() > RIGID_TOLERANCE * 3.0 {
-        return Err(format!("rotation block has determinant {det:.6}, expected +1 (a reflection is not a rigid transform)"));
+        return Err(format!(
+            "rotation block has determinant {det:.6}, expected +1 (a reflection is not a rigid transform)"
+        ));
     }
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
     let translation = Translation3::new(rows[0][3], rows[1][3], rows[2][3]);

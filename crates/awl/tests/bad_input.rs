@@ -61,14 +61,22 @@ fn bad_manifests_name_the_file_and_field() {
         ("NaN in a pose", manifest(&depth_view(nan_pose), ""), vec!["scan.json", "NaN", "line"]),
         ("3x4 matrix", manifest(&depth_view(three_rows), ""), vec!["scan.json", "line"]),
         ("empty views", manifest("[]", ""), vec!["scan.json", "views", "no views"]),
-        ("wrong format", manifest(&depth_view(IDENTITY), "").replace("awl-scan/1", "awl-scan/9"), vec!["format", "awl-scan/9"]),
+        (
+            "wrong format",
+            manifest(&depth_view(IDENTITY), "").replace("awl-scan/1", "awl-scan/9"),
+            vec!["format", "awl-scan/9"],
+        ),
         ("chain without hand-eye", manifest(&chain, ""), vec!["T_ee_camera", "missing"]),
         ("depth and points", manifest(&both, ""), vec!["views[0].points", "not both"]),
         ("half a chain", manifest(&half_chain, ""), vec!["views[0].T_base_ee", "missing"]),
         ("negative fx", neg_fx, vec!["camera.fx", "positive"]),
         ("empty depth range", bad_range, vec!["camera.depth_max", "range"]),
         ("truncated JSON", manifest(&depth_view(IDENTITY), "")[..60].to_string(), vec!["scan.json", "JSON"]),
-        ("non-rigid hand-eye", manifest(&chain, &format!(r#", "T_ee_camera": {not_rigid}"#)), vec!["T_ee_camera", "orthonormal"]),
+        (
+            "non-rigid hand-eye",
+            manifest(&chain, &format!(r#", "T_ee_camera": {not_rigid}"#)),
+            vec!["T_ee_camera", "orthonormal"],
+        ),
     ];
     let root = tempfile::tempdir().expect("tempdir");
     for (i, (name, text, needles)) in cases.iter().enumerate() {
@@ -89,7 +97,11 @@ fn bad_view_files_name_the_file() {
     assert_mentions(&err, &["depth/000000.png", "No such file"]);
 
     let cases: Vec<(&str, Box<dyn Fn(&Path)>, Vec<&str>)> = vec![
-        ("corrupt PNG", Box::new(|p: &Path| fs::write(p, b"\x89PNG\r\n\x1a\nthis is not a png").expect("w")), vec!["PNG"]),
+        (
+            "corrupt PNG",
+            Box::new(|p: &Path| fs::write(p, b"\x89PNG\r\n\x1a\nthis is not a png").expect("w")),
+            vec!["PNG"],
+        ),
         (
             "8-bit depth",
             Box::new(|p: &Path| {
@@ -122,7 +134,8 @@ fn bad_view_files_name_the_file() {
 fn bad_cloud_and_mesh_files_name_the_file() {
     let root = tempfile::tempdir().expect("tempdir");
     let p = |name: &str| root.path().join(name);
-    let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+    let header =
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
     fs::write(p("short.ply"), format!("{header}0 0 0\n1 1 1\n")).expect("w");
     fs::write(p("word.ply"), format!("{header}0 0 0\n1 one 1\n2 2 2\n")).expect("w");
     fs::write(p("nox.ply"), "ply\nformat ascii 1.0\nelement vertex 1\nproperty float y\nend_header\n1\n").expect("w");
@@ -132,7 +145,11 @@ fn bad_cloud_and_mesh_files_name_the_file() {
     fs::write(p("truncated.ply"), truncated).expect("w");
     fs::write(p("notply.ply"), "hello world\n").expect("w");
     fs::write(p("bad.pcd"), "VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2 3\n").expect("w");
-    fs::write(p("short.pcd"), "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\nHEIGHT 1\nPOINTS 5\nDATA binary\n").expect("w");
+    fs::write(
+        p("short.pcd"),
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\nHEIGHT 1\nPOINTS 5\nDATA binary\n",
+    )
+    .expect("w");
     fs::write(p("cloud.xyz"), "1 2 3\n").expect("w");
     let mesh_bad = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n";
     fs::write(p("badindex.ply"), mesh_bad).expect("w");

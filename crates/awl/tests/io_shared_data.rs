@@ -126,9 +126,11 @@ fn bunny_coordinates_and_bounds() {
     }
     let bun0 = read_pcd(&file("pcl/test/bun0.pcd")).expect("bun0");
     let p = bun0.points[0];
-    assert_eq!((p.x, p.y, p.z), (0.005_421_599_8, 0.11349, 0.040_748_999));
+    // Its first body line: "0.0054215998 0.11349 0.040748999 -0.16884723 -0.45159745 -0.87609947 ...".
+    let f = |s: &str| s.parse::<f32>().expect("number");
+    assert_eq!((p.x, p.y, p.z), (f("0.0054215998"), f("0.11349"), f("0.040748999")));
     let n = bun0.normals.as_ref().expect("normals")[0];
-    assert_eq!((n.x, n.y, n.z), (-0.168_847_23, -0.451_597_45, -0.876_099_47));
+    assert_eq!((n.x, n.y, n.z), (f("-0.16884723"), f("-0.45159745"), f("-0.87609947")));
     let bun4 = read_pcd(&file("pcl/test/bun4.pcd")).expect("bun4 (VERSION .5)");
     let p = bun4.points[0];
     assert_eq!((p.x, p.y, p.z), (0.053026, 0.11349, 0.077131));

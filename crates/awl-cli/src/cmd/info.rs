@@ -117,7 +117,10 @@ fn print_text(info: &serde_json::Value) {
         for v in info["views"].as_array().into_iter().flatten() {
             println!(
                 "  view {:>3}: {:<11} {:>8} points  pose {}  ({})",
-                v["index"], v["kind"].as_str().unwrap_or(""), v["points"], v["pose"].as_str().unwrap_or(""),
+                v["index"],
+                v["kind"].as_str().unwrap_or(""),
+                v["points"],
+                v["pose"].as_str().unwrap_or(""),
                 v["file"].as_str().unwrap_or("")
             );
         }

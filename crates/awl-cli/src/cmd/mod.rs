@@ -1,4 +1,7 @@
 //! One module per subcommand.
 
+pub mod common;
+pub mod fuse;
 pub mod info;
+pub mod register;
 pub mod simulate;

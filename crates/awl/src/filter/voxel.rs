@@ -7,9 +7,10 @@
 //! Voxel `(i, j, k)` holds the points with `floor(x / size) = i`, `floor(y / size) = j`,
 //! `floor(z / size) = k` (computed in f64, stored as i64). The grid is sparse: the occupied keys
 //! are sorted, no dense grid is allocated, so a 0.5 mm voxel over a 100 m cloud costs no more than
-//! over a 10 cm one (PCL's `VoxelGrid` overflows its int32 index there, PCL#585). Keys are packed
-//! into one u64 when the occupied ranges need at most 64 bits together (2^21 voxels per axis
-//! always fit: 1 km at 0.5 mm), else sorted as (i64, i64, i64) triples.
+//! over a 10 cm one (PCL's `VoxelGrid` overflows its int32 index there, PCL#585). When the
+//! occupied key ranges and the point index fit in 64 bits together (1 M points leave 44 bits:
+//! 2^14 voxels per axis, 32 m at 2 mm, or 2^44 along a single axis) they are packed into one u64 and
+//! radix-sorted; otherwise (key triple, index) pairs are sorted. Both give the same output.
 //!
 //! Output order is by voxel key: x, then y, then z. Parallel (rayon); the output does not depend
 //! on the number of threads (sort by (key, point index), sums in point-index order).
@@ -18,7 +19,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::cloud::PointCloud;
+use crate::cloud::{Bounds, PointCloud};
 use crate::error::{Error, Result};
 
 /// Largest |voxel coordinate| accepted; beyond it a voxel size is absurdly small for the cloud.
@@ -82,18 +83,11 @@ pub fn downsample(cloud: &PointCloud, params: &VoxelParams) -> Result<PointCloud
 pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Result<VoxelResult> {
     params.validate()?;
     cloud.validate("voxel downsample input")?;
-    let keys = voxel_keys(&cloud.points, params.voxel_size_m)?;
-    let order = sorted_order(&keys);
-    // Runs of equal keys in `order` are the voxels; `starts` has one extra entry at the end.
-    let mut starts: Vec<usize> = Vec::with_capacity(order.len() / 4 + 2);
-    for (pos, &i) in order.iter().enumerate() {
-        if pos == 0 || keys[i] != keys[order[pos - 1]] {
-            starts.push(pos);
-        }
-    }
-    starts.push(order.len());
+    let (order, starts) = match cloud.bounds() {
+        Some(bounds) => Grid::new(&bounds, params.voxel_size_m)?.sorted_runs(&cloud.points),
+        None => (Vec::new(), vec![0]),
+    };
     let runs: Vec<&[usize]> = starts.windows(2).map(|w| &order[w[0]..w[1]]).collect();
-
     let points = runs.par_iter().map(|run| mean_point(&cloud.points, run)).collect();
     let normals = cloud.normals.as_ref().map(|ns| runs.par_iter().map(|run| mean_normal(ns, run)).collect());
     let colors = cloud.colors.as_ref().map(|cs| runs.par_iter().map(|run| mean_color(cs, run)).collect());
@@ -101,60 +95,129 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
     Ok(VoxelResult { cloud: PointCloud { points, normals, colors }, points_per_voxel })
 }
 
-/// `floor(p / size)` per axis, as i64.
-fn voxel_keys(points: &[Point3<f32>], size: f64) -> Result<Vec<[i64; 3]>> {
-    let keys: Vec<Option<[i64; 3]>> = points
-        .par_iter()
-        .map(|p| {
-            let k = |v: f32| {
-                let f = (f64::from(v) / size).floor();
-                (f.abs() <= MAX_KEY).then_some(f as i64)
-            };
-            Some([k(p.x)?, k(p.y)?, k(p.z)?])
-        })
-        .collect();
-    keys.into_iter()
-        .enumerate()
-        .map(|(i, k)| {
-            k.ok_or_else(|| {
-                Error::invalid(
-                    "voxel.voxel_size_m",
-                    format!("{size} m is too small for point {i} at {:?}: voxel coordinate beyond ±2^62", points[i]),
-                )
-            })
-        })
-        .collect()
+/// The occupied key range of a cloud: `lo` is the smallest key per axis, `bits` the bits each
+/// axis's offset `key - lo` needs.
+struct Grid {
+    size: f64,
+    lo: [i64; 3],
+    bits: [u32; 3],
 }
 
-/// Point indices sorted by (voxel key, index): equal keys are adjacent, in index order.
-fn sorted_order(keys: &[[i64; 3]]) -> Vec<usize> {
-    let Some(first) = keys.first() else { return Vec::new() };
-    let (lo, hi) = keys.iter().fold((*first, *first), |(mut lo, mut hi), k| {
+/// `v << s`, or 0 when `s >= 64`.
+fn shl(v: u64, s: u32) -> u64 {
+    v.checked_shl(s).unwrap_or(0)
+}
+
+impl Grid {
+    fn new(bounds: &Bounds, size: f64) -> Result<Self> {
+        let floor = |v: f32| -> Result<i64> {
+            let f = (f64::from(v) / size).floor();
+            if f.abs() <= MAX_KEY {
+                Ok(f as i64)
+            } else {
+                Err(Error::invalid(
+                    "voxel.voxel_size_m",
+                    format!("{size} m is too small for a coordinate of {v} m: voxel coordinate beyond ±2^62"),
+                ))
+            }
+        };
+        let (mut lo, mut bits) = ([0i64; 3], [0u32; 3]);
         for a in 0..3 {
-            lo[a] = lo[a].min(k[a]);
-            hi[a] = hi[a].max(k[a]);
+            lo[a] = floor(bounds.min[a])?;
+            // floor is monotonic, so these are the extreme keys; within ±2^62 the span fits in u64.
+            bits[a] = 64 - floor(bounds.max[a])?.abs_diff(lo[a]).leading_zeros();
         }
-        (lo, hi)
-    });
-    // Keys are within ±2^62, so every span fits in u64.
-    let bits = |a: usize| 64 - (hi[a].abs_diff(lo[a])).leading_zeros();
-    let (bx, by, bz) = (bits(0), bits(1), bits(2));
-    if bx + by + bz <= 64 {
-        let shift = |v: u64, s: u32| if s >= 64 { 0 } else { v << s };
-        let mut packed: Vec<(u64, usize)> = keys
+        Ok(Self { size, lo, bits })
+    }
+
+    fn key(&self, p: &Point3<f32>) -> [i64; 3] {
+        // In range: every coordinate lies within the bounds checked in `new`.
+        [0, 1, 2].map(|a| (f64::from(p[a]) / self.size).floor() as i64)
+    }
+
+    /// Point indices sorted by (voxel key, index), and the start of each run of equal keys (plus
+    /// one final entry, `points.len()`).
+    fn sorted_runs(&self, points: &[Point3<f32>]) -> (Vec<usize>, Vec<usize>) {
+        let idx_bits = 64 - (points.len().saturating_sub(1) as u64).leading_zeros();
+        if self.bits.iter().sum::<u32>() + idx_bits <= 64 {
+            self.runs_packed(points, idx_bits)
+        } else {
+            self.runs_triples(points)
+        }
+    }
+
+    /// The fast path: key offsets (x, y, z, most significant first) above the point index in one
+    /// u64, and a stable LSD radix sort on the key bits, which keeps equal keys in index order.
+    fn runs_packed(&self, points: &[Point3<f32>], idx_bits: u32) -> (Vec<usize>, Vec<usize>) {
+        let [bx, by, bz] = self.bits;
+        let mut packed: Vec<u64> = points
             .par_iter()
             .enumerate()
-            .map(|(i, k)| {
-                let (x, y, z) = (k[0].abs_diff(lo[0]), k[1].abs_diff(lo[1]), k[2].abs_diff(lo[2]));
-                (shift(x, by + bz) | shift(y, bz) | z, i)
+            .map(|(i, p)| {
+                let k = self.key(p);
+                let [x, y, z] = [0, 1, 2].map(|a| k[a].abs_diff(self.lo[a]));
+                shl(x, by + bz + idx_bits) | shl(y, bz + idx_bits) | shl(z, idx_bits) | i as u64
             })
             .collect();
-        packed.par_sort_unstable();
-        packed.into_iter().map(|(_, i)| i).collect()
-    } else {
-        let mut full: Vec<([i64; 3], usize)> = keys.par_iter().copied().enumerate().map(|(i, k)| (k, i)).collect();
+        radix_sort(&mut packed, idx_bits, idx_bits + bx + by + bz);
+        let idx_mask = shl(1, idx_bits).wrapping_sub(1);
+        let mut order = Vec::with_capacity(points.len());
+        let mut starts = Vec::new();
+        for (pos, &v) in packed.iter().enumerate() {
+            if pos == 0 || (v ^ packed[pos - 1]) & !idx_mask != 0 {
+                starts.push(pos);
+            }
+            order.push((v & idx_mask) as usize);
+        }
+        starts.push(points.len());
+        (order, starts)
+    }
+
+    /// The general path for key ranges too wide to pack: sort (key triple, index) pairs.
+    fn runs_triples(&self, points: &[Point3<f32>]) -> (Vec<usize>, Vec<usize>) {
+        let mut full: Vec<([i64; 3], usize)> = points.par_iter().enumerate().map(|(i, p)| (self.key(p), i)).collect();
         full.par_sort_unstable();
-        full.into_iter().map(|(_, i)| i).collect()
+        let mut order = Vec::with_capacity(points.len());
+        let mut starts = Vec::new();
+        for (pos, &(k, i)) in full.iter().enumerate() {
+            if pos == 0 || k != full[pos - 1].0 {
+                starts.push(pos);
+            }
+            order.push(i);
+        }
+        starts.push(points.len());
+        (order, starts)
+    }
+}
+
+/// Stable LSD radix sort of `values` by their bits `lo_bit..hi_bit` (digits of at most 11 bits).
+fn radix_sort(values: &mut Vec<u64>, lo_bit: u32, hi_bit: u32) {
+    let total = hi_bit.saturating_sub(lo_bit);
+    if total == 0 || values.len() < 2 {
+        return;
+    }
+    let passes = total.div_ceil(11);
+    let digit = total.div_ceil(passes);
+    let mut buffer = vec![0u64; values.len()];
+    let mut counts = vec![0usize; 1 << digit];
+    let mut shift = lo_bit;
+    while shift < hi_bit {
+        let mask = (1u64 << digit.min(hi_bit - shift)) - 1;
+        counts.fill(0);
+        for &v in values.iter() {
+            counts[((v >> shift) & mask) as usize] += 1;
+        }
+        let mut sum = 0;
+        for c in counts.iter_mut() {
+            (*c, sum) = (sum, sum + *c);
+        }
+        for &v in values.iter() {
+            let d = ((v >> shift) & mask) as usize;
+            buffer[counts[d]] = v;
+            counts[d] += 1;
+        }
+        std::mem::swap(values, &mut buffer);
+        shift += digit;
     }
 }
 
@@ -296,6 +359,23 @@ mod tests {
             &VoxelParams { voxel_size_m: 1e-20 },
         );
         assert!(matches!(tiny, Err(Error::Invalid { .. })));
+    }
+
+    #[test]
+    fn packed_and_triple_paths_agree() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let points: Vec<Point3<f32>> = (0..30_000)
+            .map(|_| Point3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() * 2.0, -rng.random::<f32>()))
+            .collect();
+        let bounds = PointCloud::from_points(points.clone()).bounds().expect("bounds");
+        let grid = Grid::new(&bounds, 0.1).expect("grid");
+        let (order, starts) = grid.runs_packed(&points, 15);
+        assert_eq!((order.clone(), starts.clone()), grid.runs_triples(&points));
+        assert_eq!(starts.len() - 1, 10 * 20 * 10);
+        for w in starts.windows(2) {
+            let run = &order[w[0]..w[1]];
+            assert!(run.windows(2).all(|r| r[0] < r[1] && grid.key(&points[r[0]]) == grid.key(&points[r[1]])));
+        }
     }
 
     #[test]

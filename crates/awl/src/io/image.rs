@@ -13,9 +13,7 @@ fn decoder(path: &Path, bytes: &[u8]) -> Result<png::Reader<std::io::Cursor<Vec<
 }
 
 fn decode_frame(path: &Path, reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<Vec<u8>> {
-    let size = reader
-        .output_buffer_size()
-        .ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
+    let size = reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
     let mut buf = vec![0; size];
     let frame = reader.next_frame(&mut buf).map_err(|e| Error::format(path, format!("corrupt PNG data: {e}")))?;
     buf.truncate(frame.buffer_size());

@@ -106,3 +106,45 @@ fn read_obj(path: &Path) -> Result<TriMesh> {
     }
     Ok(mesh)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stl_obj_ply_and_clouds_dispatch_on_the_extension() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let ascii = "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n\
+                     facet normal 0 0 1\nouter loop\nvertex 1 0 0\nvertex 1 1 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid t\n";
+        std::fs::write(dir.path().join("a.stl"), ascii).expect("write");
+        let mut binary = vec![b'x'; 80];
+        binary.extend(1u32.to_le_bytes());
+        for v in [0.0f32, 0.0, 1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0, 0.0] {
+            binary.extend(v.to_le_bytes());
+        }
+        binary.extend([0, 0]);
+        std::fs::write(dir.path().join("b.STL"), binary).expect("write");
+        let obj =
+            "o quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\no tri\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf 1/1 2/2 3/3\n";
+        std::fs::write(dir.path().join("c.obj"), obj.replace("f 1/1 2/2 3/3", "f 5 6 7")).expect("write");
+        let a = read_mesh(&dir.path().join("a.stl")).expect("ascii stl");
+        assert_eq!((a.vertices.len(), a.triangles.len(), a.area()), (4, 2, 1.0));
+        let b = read_mesh(&dir.path().join("b.STL")).expect("binary stl");
+        assert_eq!((b.triangles.len(), b.area()), (1, 2.0));
+        let c = read_mesh(&dir.path().join("c.obj")).expect("obj");
+        assert_eq!((c.vertices.len(), c.triangles.len()), (7, 3));
+        assert!((c.area() - 1.5).abs() < 1e-12);
+        c.validate("c.obj").expect("valid");
+        crate::io::ply::write_ply_mesh(&dir.path().join("c.ply"), &c).expect("write ply");
+        assert_eq!(read_mesh(&dir.path().join("c.ply")).expect("ply"), c);
+        let err = read_mesh(&dir.path().join("d.off")).expect_err("unknown").to_string();
+        assert!(err.contains("d.off") && err.contains(".ply, .stl, .obj"), "{err}");
+        let cloud = c.sample_surface(50, 3).expect("sample");
+        for name in ["e.ply", "e.pcd"] {
+            write_cloud(&dir.path().join(name), &cloud).expect("write cloud");
+            assert_eq!(read_cloud(&dir.path().join(name)).expect("read cloud"), cloud, "{name}");
+        }
+        assert!(write_cloud(&dir.path().join("e.xyz"), &cloud).is_err());
+        assert!(read_cloud(&dir.path().join("e.xyz")).expect_err("unknown").to_string().contains(".ply, .pcd"));
+    }
+}

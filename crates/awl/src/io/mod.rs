@@ -4,11 +4,11 @@
 //! write a temporary sibling and rename it into place, so a crash never leaves half a file.
 
 pub mod image;
-pub mod ply;
-mod ply_header;
+pub mod mesh;
 pub mod pcd;
 mod pcd_header;
-pub mod mesh;
+pub mod ply;
+mod ply_header;
 pub mod scan;
 pub mod truth;
 

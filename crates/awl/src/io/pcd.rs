@@ -374,7 +374,7 @@ mod tests {
         assert_eq!(parse_pcd(Path::new("c.pcd"), &compressed_file(header, &data, &real)).expect("lzf").len(), 3);
         let mut short = compressed_file(header, &data, &lzf_literals(&data));
         short.truncate(short.len() - 3);
-        let err = parse_pcd(Path::new("/x/c.pcd"), &short).unwrap_err().to_string();
+        let err = parse_pcd(Path::new("/x/c.pcd"), &short).expect_err("must fail").to_string();
         assert!(err.contains("/x/c.pcd") && err.contains("compressed bytes announced"), "{err}");
     }
 

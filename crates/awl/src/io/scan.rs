@@ -117,10 +117,9 @@ impl Scan {
     /// (the reader already refuses that, so only hand-built scans reach it), or the index is out of range.
     pub fn world_from_camera(&self, index: usize) -> Result<Isometry3<f64>> {
         let manifest = Self::manifest_path(&self.dir);
-        let view = self
-            .views
-            .get(index)
-            .ok_or_else(|| Error::field(&manifest, "views", format!("no view {index} (scan has {})", self.views.len())))?;
+        let view = self.views.get(index).ok_or_else(|| {
+            Error::field(&manifest, "views", format!("no view {index} (scan has {})", self.views.len()))
+        })?;
         match view.pose {
             ViewPose::Camera { world_from_camera } => Ok(world_from_camera),
             ViewPose::Chain { world_from_base, base_from_ee } => {
@@ -226,7 +225,11 @@ fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
     let mut distortion = [0.0; 5];
     if let Some(d) = &raw.distortion {
         if d.len() > 5 || d.iter().any(|k| !k.is_finite()) {
-            return Err(Error::field(path, "camera.distortion", "expected up to 5 finite numbers [k1, k2, p1, p2, k3]"));
+            return Err(Error::field(
+                path,
+                "camera.distortion",
+                "expected up to 5 finite numbers [k1, k2, p1, p2, k3]",
+            ));
         }
         distortion[..d.len()].copy_from_slice(d);
     }
@@ -245,9 +248,18 @@ fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
     let depth_min_m = raw.depth_min.unwrap_or(0.0);
     let depth_max_m = raw.depth_max.unwrap_or(f64::INFINITY);
     if !(depth_min_m >= 0.0 && depth_max_m > depth_min_m) {
-        return Err(Error::field(path, "camera.depth_max", format!("empty depth range [{depth_min_m}, {depth_max_m}]")));
+        return Err(Error::field(
+            path,
+            "camera.depth_max",
+            format!("empty depth range [{depth_min_m}, {depth_max_m}]"),
+        ));
     }
-    Ok(DepthCamera { intrinsics, depth_scale: positive(path, "camera.depth_scale", raw.depth_scale)?, depth_min_m, depth_max_m })
+    Ok(DepthCamera {
+        intrinsics,
+        depth_scale: positive(path, "camera.depth_scale", raw.depth_scale)?,
+        depth_min_m,
+        depth_max_m,
+    })
 }
 
 fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Result<ViewSpec> {
@@ -255,12 +267,18 @@ fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Res
     let data = match (raw.depth, raw.points) {
         (Some(depth), None) => ViewData::Depth { depth, color: raw.color },
         (None, Some(points)) if raw.color.is_none() => ViewData::Points { points },
-        (None, Some(_)) => return Err(Error::field(path, field("color"), "a color image goes with a depth image, not with points")),
-        (Some(_), Some(_)) => return Err(Error::field(path, field("points"), "a view gives either depth or points, not both")),
+        (None, Some(_)) => {
+            return Err(Error::field(path, field("color"), "a color image goes with a depth image, not with points"));
+        }
+        (Some(_), Some(_)) => {
+            return Err(Error::field(path, field("points"), "a view gives either depth or points, not both"));
+        }
         (None, None) => return Err(Error::field(path, field("depth"), "a view needs `depth` or `points`")),
     };
     let pose = match (raw.world_camera, raw.world_base, raw.base_ee) {
-        (Some(rows), None, None) => ViewPose::Camera { world_from_camera: pose_field(path, &field("T_world_camera"), &rows)? },
+        (Some(rows), None, None) => {
+            ViewPose::Camera { world_from_camera: pose_field(path, &field("T_world_camera"), &rows)? }
+        }
         (None, Some(wb), Some(be)) => {
             if !has_hand_eye {
                 return Err(Error::field(path, "T_ee_camera", format!("missing, but views[{i}] gives T_base_ee")));
@@ -271,7 +289,11 @@ fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Res
             }
         }
         (Some(_), _, _) => {
-            return Err(Error::field(path, field("T_world_camera"), "give T_world_camera or T_world_base + T_base_ee, not both"));
+            return Err(Error::field(
+                path,
+                field("T_world_camera"),
+                "give T_world_camera or T_world_base + T_base_ee, not both",
+            ));
         }
         (None, Some(_), None) => return Err(Error::field(path, field("T_base_ee"), "missing (T_world_base is given)")),
         (None, None, Some(_)) => return Err(Error::field(path, field("T_world_base"), "missing (T_base_ee is given)")),
@@ -286,7 +308,8 @@ fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Res
 /// [`Error::Io`] when the manifest cannot be read; [`Error::Format`] for invalid JSON or a wrong
 /// `format`; [`Error::Field`] for a missing or invalid field (non-rigid matrix, NaN, no views,...).
 pub fn read_scan(dir_or_manifest: &Path) -> Result<Scan> {
-    let (dir, path) = if dir_or_manifest.is_dir() {
+    let is_manifest = dir_or_manifest.is_file() || crate::io::extension(dir_or_manifest) == "json";
+    let (dir, path) = if !is_manifest {
         (dir_or_manifest.to_path_buf(), Scan::manifest_path(dir_or_manifest))
     } else {
         let dir = dir_or_manifest.parent().map(Path::to_path_buf).unwrap_or_default();

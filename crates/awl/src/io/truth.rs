@@ -120,7 +120,10 @@ pub fn read_truth(dir_or_file: &Path) -> Result<Truth> {
         .map(|(i, v)| {
             Ok(TruthView {
                 world_from_camera: pose_field(&path, &format!("views[{i}].T_world_camera"), &v.world_camera)?,
-                world_from_base: v.world_base.map(|r| pose_field(&path, &format!("views[{i}].T_world_base"), &r)).transpose()?,
+                world_from_base: v
+                    .world_base
+                    .map(|r| pose_field(&path, &format!("views[{i}].T_world_base"), &r))
+                    .transpose()?,
                 base_from_ee: v.base_ee.map(|r| pose_field(&path, &format!("views[{i}].T_base_ee"), &r)).transpose()?,
                 label: v.label.clone(),
             })

@@ -40,13 +40,20 @@ pub struct IcpParams {
     pub kernel: Kernel,
     /// Kernel scale as a fraction of the level's gate. Default 0.5.
     pub kernel_scale_ratio: f64,
+    /// Reject correspondences whose nearest target point lies farther than this many level voxels
+    /// along the target's tangent plane (boundary matches, which drag partially overlapping views
+    /// toward the overlap). Used at levels with `voxel_m > 0`. Default 1.5.
+    pub max_tangential_voxels: Option<f64>,
     /// Reject correspondences whose normals differ by more than this (either sign), radians.
     /// Used only when the source has normals. Default 60 degrees.
     pub max_normal_angle_rad: Option<f64>,
-    /// A level has converged when a step moves less than this, metres. Default 1e-6.
+    /// A level has converged when a step moves less than this, metres. Default 1e-5.
     pub convergence_translation_m: f64,
-    /// A level has converged when a step rotates less than this, radians. Default 1e-6.
+    /// A level has converged when a step rotates less than this, radians. Default 1e-5.
     pub convergence_rotation_rad: f64,
+    /// At most this many source points per level (an even, deterministic stride over the
+    /// down-sampled source); bounds the cost on dense views. Default 20 000.
+    pub max_source_points: usize,
 }
 
 impl Default for IcpParams {
@@ -59,9 +66,11 @@ impl Default for IcpParams {
             ],
             kernel: Kernel::Tukey,
             kernel_scale_ratio: 0.5,
+            max_tangential_voxels: Some(1.5),
             max_normal_angle_rad: Some(60f64.to_radians()),
-            convergence_translation_m: 1e-6,
-            convergence_rotation_rad: 1e-6,
+            convergence_translation_m: 1e-5,
+            convergence_rotation_rad: 1e-5,
+            max_source_points: 20_000,
         }
     }
 }
@@ -109,6 +118,15 @@ fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> {
     if voxel_m > 0.0 { downsample(cloud, &VoxelParams { voxel_size_m: voxel_m }) } else { Ok(cloud.clone()) }
 }
 
+/// At most `max` points of `cloud`, taken at an even stride (all of them when it has fewer).
+fn thin(cloud: PointCloud, max: usize) -> PointCloud {
+    if cloud.len() <= max || max == 0 {
+        return cloud;
+    }
+    let picks: Vec<usize> = (0..max).map(|i| i * cloud.len() / max).collect();
+    cloud.select(&picks)
+}
+
 fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result<()> {
     if params.levels.is_empty() {
         return Err(Error::invalid("ICP parameters", "no levels"));
@@ -117,7 +135,10 @@ fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result
         return Err(Error::invalid("ICP parameters", format!("invalid level {l:?}")));
     }
     if source.len() < 6 || target.len() < 6 {
-        return Err(Error::invalid("ICP input", format!("too few points (source {}, target {})", source.len(), target.len())));
+        return Err(Error::invalid(
+            "ICP input",
+            format!("too few points (source {}, target {})", source.len(), target.len()),
+        ));
     }
     match &target.normals {
         Some(n) if n.len() == target.len() => Ok(()),
@@ -168,7 +189,7 @@ pub fn register(
     let mut last = None;
     let min_cos = params.max_normal_angle_rad.map(f64::cos);
     for level in &params.levels {
-        let src = level_cloud(source, level.voxel_m)?;
+        let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
         let tgt = level_cloud(target, level.voxel_m)?;
         let normals = tgt.normals.as_deref().unwrap_or_default();
         let index = KdIndex::new(&tgt.points)?;
@@ -181,6 +202,10 @@ pub fn register(
             let centre = centre_and_length(&moved).0;
             let step = StepParams {
                 max_distance_m: level.max_correspondence_m,
+                max_tangential_m: params
+                    .max_tangential_voxels
+                    .filter(|_| level.voxel_m > 0.0)
+                    .map(|k| k * level.voxel_m),
                 min_normal_cos: min_cos,
                 kernel: params.kernel,
                 kernel_scale_m: params.kernel_scale_ratio * level.max_correspondence_m,

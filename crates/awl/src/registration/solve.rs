@@ -55,6 +55,9 @@ impl System {
 #[derive(Clone, Copy)]
 pub(crate) struct StepParams {
     pub max_distance_m: f64,
+    /// Correspondences whose offset along the target's tangent plane exceeds this are dropped:
+    /// the nearest target point is then on the target's boundary, not under the source point.
+    pub max_tangential_m: Option<f64>,
     pub min_normal_cos: Option<f64>,
     pub kernel: Kernel,
     pub kernel_scale_m: f64,
@@ -70,7 +73,7 @@ pub(crate) fn linearise(
     target: &Target<'_>,
     p: &StepParams,
 ) -> System {
-    let max_sq = (p.max_distance_m * p.max_distance_m) as f32;
+    let max_m = p.max_distance_m as f32;
     let partial: Vec<System> = moved
         .par_chunks(CHUNK)
         .enumerate()
@@ -78,10 +81,7 @@ pub(crate) fn linearise(
             let mut sys = System::zero();
             for (j, s) in chunk.iter().enumerate() {
                 let q = s.cast::<f32>();
-                let Some(nb) = target.index.nearest(&q) else { continue };
-                if nb.dist_sq > max_sq {
-                    continue;
-                }
+                let Some(nb) = target.index.nearest_within(&q, max_m) else { continue };
                 let t = target.points[nb.index as usize].cast::<f64>();
                 let n = target.normals[nb.index as usize].cast::<f64>();
                 if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals) {
@@ -89,7 +89,13 @@ pub(crate) fn linearise(
                         continue;
                     }
                 }
-                let r = n.dot(&(s - t));
+                let offset = s - t;
+                let r = n.dot(&offset);
+                if let Some(max) = p.max_tangential_m {
+                    if (offset - n * r).norm_squared() > max * max {
+                        continue;
+                    }
+                }
                 let w = p.kernel.weight(r, p.kernel_scale_m);
                 sys.inliers += 1;
                 sys.residual_sq += r * r;

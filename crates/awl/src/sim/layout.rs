@@ -7,16 +7,18 @@ use rand_chacha::ChaCha8Rng;
 use crate::error::Result;
 use crate::mesh::TriMesh;
 use crate::sim::random::{Stream, rng, uniform};
-use crate::sim::shapes::{cuboid, quad};
+use crate::sim::shapes::cuboid;
 use crate::sim::tag36h11::tag36h11_bitmap;
 use crate::sim::workpiece::Workpiece;
 use crate::sim::world::{Material, TagPrint, Texture, World, WorldBuilder};
 use crate::sim::{LABEL_FLOOR, LABEL_OTHER, LABEL_WORKPIECE, TAG_ID};
 
 /// The workpiece's material.
-pub(crate) const WORKPIECE: Material = Material { label: LABEL_WORKPIECE, albedo: [198.0, 198.0, 194.0], texture: Texture::Tagged };
+pub(crate) const WORKPIECE: Material =
+    Material { label: LABEL_WORKPIECE, albedo: [198.0, 198.0, 194.0], texture: Texture::Tagged };
 /// The floor's material.
-pub(crate) const FLOOR: Material = Material { label: LABEL_FLOOR, albedo: [128.0, 124.0, 118.0], texture: Texture::Floor };
+pub(crate) const FLOOR: Material =
+    Material { label: LABEL_FLOOR, albedo: [128.0, 124.0, 118.0], texture: Texture::Floor };
 const WALL: Material = Material { label: LABEL_OTHER, albedo: [214.0, 204.0, 184.0], texture: Texture::Plain };
 
 /// The wall piece, seen from the workpiece's centre (world frame, horizontal).
@@ -70,12 +72,8 @@ pub(crate) fn tag_print(wp: &Workpiece, world_from_object: &Isometry3<f64>) -> O
     Some(TagPrint { tag_from_world: world_from_tag.inverse(), size: wp.tag_size, black })
 }
 
-/// The floor: a 12 x 12 m quad at height `z` centred under `(x, y)`.
-pub(crate) fn floor_mesh(x: f64, y: f64, z: f64) -> TriMesh {
-    let h = 6.0;
-    let p = |dx: f64, dy: f64| Point3::new(x + dx, y + dy, z);
-    quad([p(-h, -h), p(h, -h), p(h, h), p(-h, h)])
-}
+/// Half the edge of the square floor, metres.
+pub(crate) const FLOOR_HALF_M: f64 = 6.0;
 
 /// Clutter boxes in the object frame: one or two, each on a side of the footprint other than the
 /// tag's, `3-8 cm` from the footprint rectangle, slightly rotated.
@@ -111,7 +109,12 @@ fn clutter(wp: &Workpiece, rng: &mut ChaCha8Rng, builder: &mut WorldBuilder, wor
 
 /// The wall: 1.5 m wide, 1 m tall, 10 cm thick, 0.5-1 m beyond the workpiece's extent, on the side
 /// away from the tag (within 60 degrees of straight behind).
-fn wall(wp: &Workpiece, rng: &mut ChaCha8Rng, world_from_object: &Isometry3<f64>, centre: &Point3<f64>) -> (TriMesh, Isometry3<f64>, Wall) {
+fn wall(
+    wp: &Workpiece,
+    rng: &mut ChaCha8Rng,
+    world_from_object: &Isometry3<f64>,
+    centre: &Point3<f64>,
+) -> (TriMesh, Isometry3<f64>, Wall) {
     let tag_normal = world_from_object.rotation * wp.object_from_tag.rotation * Vector3::z();
     let behind = (-tag_normal.y).atan2(-tag_normal.x) + uniform(rng, -1.05, 1.05);
     let dir = Vector2::new(behind.cos(), behind.sin());
@@ -130,12 +133,13 @@ pub(crate) fn scan_world(wp: &Workpiece, seed: u64) -> Result<(World, ScanLayout
     let mut rng = rng(seed, Stream::Scene, 0, 0);
     let (tx, ty) = (uniform(&mut rng, -0.2, 0.2), uniform(&mut rng, -0.2, 0.2));
     let yaw = uniform(&mut rng, 0.0, std::f64::consts::TAU);
-    let footprint_centre = Vector3::new((wp.footprint[0] + wp.footprint[2]) / 2.0, (wp.footprint[1] + wp.footprint[3]) / 2.0, 0.0);
+    let footprint_centre =
+        Vector3::new((wp.footprint[0] + wp.footprint[2]) / 2.0, (wp.footprint[1] + wp.footprint[3]) / 2.0, 0.0);
     let world_from_object = yaw_at(Vector3::new(tx, ty, 0.0), yaw) * yaw_at(-footprint_centre, 0.0);
     let centre = world_from_object * wp.centre;
     let mut builder = WorldBuilder::default();
     builder.add(&wp.cad, &world_from_object, WORKPIECE);
-    builder.add(&floor_mesh(0.0, 0.0, 0.0), &Isometry3::identity(), FLOOR);
+    builder.floor((0.0, 0.0, 0.0), FLOOR_HALF_M, FLOOR);
     clutter(wp, &mut rng, &mut builder, &world_from_object);
     let (wall_mesh, world_from_wall, wall) = wall(wp, &mut rng, &world_from_object, &centre);
     builder.add(&wall_mesh, &world_from_wall, WALL);

@@ -22,8 +22,6 @@ mod workpiece;
 mod world;
 mod write;
 
-use nalgebra::Point2;
-
 use crate::camera::{DepthCamera, Intrinsics};
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
@@ -180,7 +178,7 @@ pub struct SimView {
 }
 
 /// A simulated scan (or shot) in memory.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Simulation {
     /// The manifest, with the recorded (noisy) poses; `dir` is empty and paths are relative.
     pub scan: Scan,
@@ -243,9 +241,4 @@ pub fn simulate(params: &SimParams) -> Result<Simulation> {
         .collect();
     let (scan, truth) = record::records(&wp, params, &camera, &plan, renderer.noise);
     Ok(Simulation { scan, truth, cad: wp.cad, views })
-}
-
-/// Back-projects pixel `(u, v)` at depth `z_m` with `camera` (a convenience for checks and tests).
-pub fn back_project(camera: &DepthCamera, u: u32, v: u32, z_m: f64) -> nalgebra::Point3<f64> {
-    camera.intrinsics.back_project(&Point2::new(f64::from(u), f64::from(v)), z_m)
 }

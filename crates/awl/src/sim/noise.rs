@@ -4,13 +4,11 @@
 //! grazing incidence, 1 % random holes, flying pixels mixing foreground and background at depth
 //! edges, 0.02 % outliers, a 0.1 % global depth-scale error, and 1 mm quantisation.
 
-use nalgebra::{Point3, Vector3};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::camera::DepthCamera;
 use crate::sim::random::{Stream, normal, rng, uniform};
-use crate::sim::world::{Hit, World};
 
 /// The model's axial depth noise (one sigma, metres) at depth `z_m` and incidence cosine
 /// `cos_incidence`, for a noise level of scale `level_scale` (none 0, low 0.5, realistic 1, harsh 2).
@@ -21,7 +19,7 @@ pub fn axial_sigma_m(z_m: f64, cos_incidence: f64, level_scale: f64) -> f64 {
 }
 
 /// Distance between the depth (left) imager and the right imager, metres.
-const BASELINE_M: f64 = 0.05;
+pub(crate) const BASELINE_M: f64 = 0.05;
 
 /// Scan-wide depth noise settings.
 #[derive(Debug, Clone, Copy)]
@@ -44,8 +42,7 @@ impl DepthNoise {
     }
 }
 
-/// The noiseless render of one view, row-major: ray parameter `t` (= z in the camera frame; 0 when
-/// nothing within range), label, incidence cosine and hit.
+/// The noiseless render of one view, row-major: depth, label and incidence cosine.
 pub(crate) struct CleanView<'a> {
     /// Width, pixels.
     pub width: usize,
@@ -57,8 +54,6 @@ pub(crate) struct CleanView<'a> {
     pub label: &'a [u8],
     /// |cos| of the incidence angle.
     pub cos: &'a [f64],
-    /// The hits.
-    pub hits: &'a [Option<Hit>],
 }
 
 impl CleanView<'_> {
@@ -99,45 +94,51 @@ impl CleanView<'_> {
 pub(crate) struct RowContext<'a> {
     /// The noiseless render.
     pub clean: &'a CleanView<'a>,
-    /// The scene (for stereo shadows).
-    pub world: &'a World,
-    /// World position of the right imager.
-    pub right_imager: Point3<f64>,
-    /// The camera (depth range and scale).
+    /// The camera (focal length, depth range and scale).
     pub camera: &'a DepthCamera,
     /// Noise settings.
     pub noise: DepthNoise,
 }
 
-/// True when the right imager cannot see the hit (stereo shadow).
-fn shadowed(ctx: &RowContext<'_>, hit: &Hit) -> bool {
-    let to_imager: Vector3<f64> = ctx.right_imager - hit.point;
-    let distance = to_imager.norm();
-    let dir = to_imager / distance.max(1e-9);
-    ctx.world.blocked(&(hit.point + dir * 0.002), &dir, distance - 0.004)
+/// Stereo shadows of row `v`: pixels the right imager (at `+BASELINE_M` along x, rectified) cannot
+/// see because a nearer surface to their right in the image covers them in the right image.
+/// A pixel at column `u` and depth `z` lands at column `u - fx * b / z` of the right image; it is
+/// hidden when some pixel further right lands at or left of it.
+fn stereo_shadows(clean: &CleanView<'_>, fx: f64, v: usize) -> Vec<bool> {
+    let w = clean.width;
+    let mut shadow = vec![false; w];
+    let mut min_right = f64::INFINITY;
+    for u in (0..w).rev() {
+        let z = clean.z[v * w + u];
+        if z <= 0.0 {
+            continue;
+        }
+        let x_right = u as f64 - fx * BASELINE_M / z;
+        shadow[u] = min_right < x_right - 0.25;
+        min_right = min_right.min(x_right);
+    }
+    shadow
 }
 
 /// The noisy depth (metres, 0 = dropped) of pixel `(u, v)` with a clean return.
-fn noisy_depth(ctx: &RowContext<'_>, rng: &mut ChaCha8Rng, u: usize, v: usize, i: usize) -> f64 {
+fn noisy_depth(ctx: &RowContext<'_>, rng: &mut ChaCha8Rng, (u, v, i): (usize, usize, usize), shadow: bool) -> f64 {
     let (clean, noise) = (ctx.clean, ctx.noise);
     let (z, cos) = (clean.z[i], clean.cos[i]);
     let s = noise.scale;
     if s <= 0.0 {
         return z;
     }
-    let dropped = clean.hits[i].as_ref().is_some_and(|h| shadowed(ctx, h))
-        || cos < noise.grazing_cos()
-        || rng.random_bool((0.01 * s).min(1.0));
+    let dropped = shadow || cos < noise.grazing_cos() || rng.random_bool((0.01 * s).min(1.0));
     if dropped {
         return 0.0;
     }
     let (du, dv) = (normal(rng) * 0.5 * s, normal(rng) * 0.5 * s);
     let mut depth = clean.sample(u as f64 + du, v as f64 + dv, z);
-    if let Some(other) = clean.edge_neighbour(u as i64, v as i64, z) {
-        if rng.random_bool((0.3 * s).min(0.6)) {
-            let alpha = uniform(rng, 0.15, 0.85);
-            depth = alpha * depth + (1.0 - alpha) * other;
-        }
+    if let Some(other) = clean.edge_neighbour(u as i64, v as i64, z)
+        && rng.random_bool((0.3 * s).min(0.6))
+    {
+        let alpha = uniform(rng, 0.15, 0.85);
+        depth = alpha * depth + (1.0 - alpha) * other;
     }
     depth += normal(rng) * axial_sigma_m(depth, cos, s);
     depth *= 1.0 + noise.scale_error;
@@ -152,12 +153,14 @@ pub(crate) fn noisy_row(ctx: &RowContext<'_>, rng: &mut ChaCha8Rng, v: usize) ->
     let width = ctx.clean.width;
     let mut depth = vec![0u16; width];
     let mut labels = vec![0u8; width];
+    let shadows =
+        if ctx.noise.scale > 0.0 { stereo_shadows(ctx.clean, ctx.camera.intrinsics.fx, v) } else { vec![false; width] };
     for u in 0..width {
         let i = v * width + u;
         if ctx.clean.z[i] <= 0.0 {
             continue;
         }
-        let z = noisy_depth(ctx, rng, u, v, i);
+        let z = noisy_depth(ctx, rng, (u, v, i), shadows[u]);
         if z < ctx.camera.depth_min_m || z > ctx.camera.depth_max_m {
             continue;
         }

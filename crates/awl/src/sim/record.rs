@@ -36,16 +36,22 @@ pub(crate) struct Plan {
     pub shot: Option<Value>,
 }
 
-fn observe_all(world: &World, wp: &Workpiece, camera: &DepthCamera, world_from_object: &Isometry3<f64>, views: &[RigView]) -> Vec<TagObservation> {
+fn observe_all(
+    world: &World,
+    wp: &Workpiece,
+    camera: &DepthCamera,
+    world_from_object: &Isometry3<f64>,
+    views: &[RigView],
+) -> Vec<TagObservation> {
     let world_from_tag = world_from_object * wp.object_from_tag;
     views.iter().map(|v| observe_tag(world, camera, &world_from_tag, wp.tag_size, &v.world_from_camera)).collect()
 }
 
-/// Plans a scan: the seed's scene, then rig plans until enough views see the tag well (at least
-/// 3, or a quarter of the views when fewer than 12); the best of 40 attempts otherwise.
+/// Plans a scan: the seed's scene, then rig plans until enough views see the tag well (4, or a
+/// third of the views when fewer than 12); the best of 40 attempts otherwise.
 pub(crate) fn scan_plan(wp: &Workpiece, params: &SimParams, camera: &DepthCamera) -> Result<Plan> {
     let (world, layout) = scan_world(wp, params.seed)?;
-    let need = params.views.div_ceil(4).min(3);
+    let need = params.views.div_ceil(3).min(4);
     let mut best: Option<(usize, Vec<RigView>, Vec<TagObservation>)> = None;
     for attempt in 0..40 {
         let views = plan_scan(&layout, wp.centre.z, params.views, params.seed, attempt);
@@ -97,7 +103,13 @@ fn image_path(kind: &str, index: usize) -> PathBuf {
 }
 
 /// The manifest (recorded, noisy poses) and the truth of a planned simulation.
-pub(crate) fn records(wp: &Workpiece, params: &SimParams, camera: &DepthCamera, plan: &Plan, noise: DepthNoise) -> (Scan, Truth) {
+pub(crate) fn records(
+    wp: &Workpiece,
+    params: &SimParams,
+    camera: &DepthCamera,
+    plan: &Plan,
+    noise: DepthNoise,
+) -> (Scan, Truth) {
     let scale = params.noise.scale();
     let errors = pose_errors(params.seed, plan.stops, plan.views.len(), scale, params.shot.is_none());
     let ee_from_camera = true_ee_from_camera();
@@ -163,8 +175,16 @@ fn truth(wp: &Workpiece, params: &SimParams, plan: &Plan, noise: DepthNoise) -> 
     }
 }
 
-fn truth_extra(params: &SimParams, plan: &Plan, world_from_tag: &Isometry3<f64>, noise: DepthNoise) -> Map<String, Value> {
-    let flip = Isometry3::from_parts(Default::default(), UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+fn truth_extra(
+    params: &SimParams,
+    plan: &Plan,
+    world_from_tag: &Isometry3<f64>,
+    noise: DepthNoise,
+) -> Map<String, Value> {
+    let flip = Isometry3::from_parts(
+        Default::default(),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+    );
     let s = params.noise.scale();
     let mut extra = Map::new();
     extra.insert("generator".into(), json!("awl simulate"));
@@ -176,7 +196,10 @@ fn truth_extra(params: &SimParams, plan: &Plan, world_from_tag: &Isometry3<f64>,
         "tag_frames".into(),
         json!("T_world_tag: x right, y up, z out of the face; T_world_tag_apriltag: AprilTag library frame, x right, y down, z into the face"),
     );
-    extra.insert("labels".into(), json!("labels/*.png: source of each depth pixel, 0 none, 1 floor, 2 workpiece, 3 clutter, wall or support"));
+    extra.insert(
+        "labels".into(),
+        json!("labels/*.png: source of each depth pixel, 0 none, 1 floor, 2 workpiece, 3 clutter, wall or support"),
+    );
     extra.insert("depth_scale_error".into(), json!(noise.scale_error));
     extra.insert(
         "noise_params".into(),

@@ -10,7 +10,7 @@ use crate::image::{ColorImage, DepthImage};
 use crate::sim::LabelImage;
 use crate::sim::noise::{CleanView, DepthNoise, RowContext, noisy_row};
 use crate::sim::random::{Stream, normal, rng};
-use crate::sim::shade::{Lighting, radiance, to_srgb};
+use crate::sim::shade::{Gamma, Lighting, radiance};
 use crate::sim::world::{Hit, World};
 
 /// Rays farther than this see nothing (color background), metres.
@@ -79,14 +79,8 @@ impl Renderer<'_> {
                 cos[i] = self.world.face_normal(hit.triangle).dot(&dir).abs() / dir.norm();
             }
         }
-        let clean = CleanView { width: w, height: h, z: &z, label: &label, cos: &cos, hits: &hits };
-        let ctx = RowContext {
-            clean: &clean,
-            world: self.world,
-            right_imager: world_from_camera * Point3::new(0.05, 0.0, 0.0),
-            camera: self.camera,
-            noise: self.noise,
-        };
+        let clean = CleanView { width: w, height: h, z: &z, label: &label, cos: &cos };
+        let ctx = RowContext { clean: &clean, camera: self.camera, noise: self.noise };
         let noisy: Vec<(u16, u8)> = rows(h, |v| {
             let mut rng = rng(self.seed, Stream::DepthRow, index as u64, v as u64);
             let (d, l) = noisy_row(&ctx, &mut rng, v);
@@ -106,14 +100,15 @@ impl Renderer<'_> {
         let (u, v, h) = (i % w, i / w, hits.len() / w);
         let key = |hit: &Option<Hit>| hit.as_ref().map(|x| (self.world.material(x.triangle).label, x.t));
         let me = key(&hits[i]);
-        if let (Some(tag), Some(hit)) = (self.world.tag.as_ref(), hits[i].as_ref()) {
-            if tag.near(&hit.point) {
-                return true;
-            }
+        if let (Some(tag), Some(hit)) = (self.world.tag.as_ref(), hits[i].as_ref())
+            && tag.near(&hit.point)
+        {
+            return true;
         }
-        let neighbours = [(u > 0).then(|| i - 1), (u + 1 < w).then(|| i + 1), (v > 0).then(|| i - w), (v + 1 < h).then(|| i + w)];
+        let neighbours =
+            [(u > 0).then(|| i - 1), (u + 1 < w).then(|| i + 1), (v > 0).then(|| i - w), (v + 1 < h).then(|| i + w)];
         neighbours.into_iter().flatten().any(|j| match (me, key(&hits[j])) {
-            (Some((la, ta)), Some((lb, tb))) => la != lb || (ta - tb).abs() > 0.01 * ta,
+            (Some((la, ta)), Some((lb, tb))) => la != lb || (ta - tb).abs() > 0.03 + 0.05 * ta,
             (None, None) => false,
             _ => true,
         })
@@ -123,10 +118,9 @@ impl Renderer<'_> {
         let w = self.camera.intrinsics.width as usize;
         let h = self.camera.intrinsics.height as usize;
         let centre = z.get((h / 2) * w + w / 2).copied().filter(|&c| c > 0.0).unwrap_or(1.0);
-        let lighting = Lighting {
-            light: frame.pose * Point3::new(0.0, -0.1, 0.0),
-            exposure_distance: centre.clamp(0.5, 2.0),
-        };
+        let lighting =
+            Lighting { light: frame.pose * Point3::new(0.0, -0.1, 0.0), exposure_distance: centre.clamp(0.5, 2.0) };
+        let gamma = Gamma::new();
         rows(h, |v| {
             let mut rng = rng(self.seed, Stream::ColorRow, index as u64, v as u64);
             (0..w)
@@ -137,7 +131,8 @@ impl Renderer<'_> {
                     } else {
                         radiance(self.world, hits[i].as_ref(), &frame.dir(self.camera, u as f64, v as f64), &lighting)
                     };
-                    linear.map(|c| (to_srgb(c) + normal(&mut rng) * self.color_sigma).round().clamp(0.0, 255.0) as u8)
+                    linear
+                        .map(|c| (gamma.srgb(c) + normal(&mut rng) * self.color_sigma).round().clamp(0.0, 255.0) as u8)
                 })
                 .collect()
         })

@@ -38,7 +38,8 @@ pub(crate) fn look_at(eye: &Point3<f64>, target: &Point3<f64>, roll: f64) -> Iso
     let x = z.cross(&Vector3::z()).try_normalize(1e-9).unwrap_or_else(Vector3::x);
     let y = z.cross(&x);
     let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
-    let rolled = UnitQuaternion::from_rotation_matrix(&rotation) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), roll);
+    let rolled =
+        UnitQuaternion::from_rotation_matrix(&rotation) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), roll);
     Isometry3::from_parts(Translation3::from(eye.coords), rolled)
 }
 
@@ -109,10 +110,11 @@ pub(crate) fn plan_scan(layout: &ScanLayout, centre_height: f64, n: usize, seed:
     let mut views = Vec::with_capacity(n);
     for stop in 0..stops {
         let mine: Vec<&Isometry3<f64>> = cameras.iter().filter(|(s, _)| *s == stop).map(|(_, c)| c).collect();
-        let mean = mine.iter().fold(Vector2::zeros(), |acc, c| {
-            acc + (c.translation.vector.xy() - layout.centre.xy().coords).normalize()
-        });
-        let reach = mine.iter().map(|c| (c.translation.vector.xy() - layout.centre.xy().coords).norm()).fold(0.0, f64::max);
+        let mean = mine
+            .iter()
+            .fold(Vector2::zeros(), |acc, c| acc + (c.translation.vector.xy() - layout.centre.xy().coords).normalize());
+        let reach =
+            mine.iter().map(|c| (c.translation.vector.xy() - layout.centre.xy().coords).norm()).fold(0.0, f64::max);
         let world_from_base = base_pose(layout, &mut rng, mean.y.atan2(mean.x), reach);
         for world_from_camera in mine {
             let base_from_ee = world_from_base.inverse() * world_from_camera * ee_from_camera.inverse();

@@ -36,7 +36,8 @@ pub(crate) fn cuboid(min: Point3<f64>, max: Point3<f64>) -> TriMesh {
 }
 
 /// A closed cylinder standing on z = 0 around the vertical axis through `(cx, cy)`; the side shares
-/// vertices around (smooth normals), the caps have their own (flat normals).
+/// vertices around (smooth normals) and is cut into 2.5 cm bands (no long slivers, so the BVH stays
+/// tight when the cylinder is tilted); the caps have their own vertices (flat normals).
 pub(crate) fn cylinder(cx: f64, cy: f64, radius: f64, height: f64, segments: u32) -> TriMesh {
     let mut mesh = TriMesh::default();
     let ring = |z: f64| {
@@ -45,14 +46,18 @@ pub(crate) fn cylinder(cx: f64, cy: f64, radius: f64, height: f64, segments: u32
             Point3::new(cx + radius * phi.cos(), cy + radius * phi.sin(), z)
         })
     };
-    // Side: bottom ring 0..n, top ring n..2n.
-    mesh.vertices.extend(ring(0.0));
-    mesh.vertices.extend(ring(height));
-    for j in 0..segments {
-        let k = (j + 1) % segments;
-        let (b0, b1, t0, t1) = (j, k, segments + j, segments + k);
-        mesh.triangles.push([b0, b1, t1]);
-        mesh.triangles.push([b0, t1, t0]);
+    let bands = ((height / 0.025).ceil() as u32).max(1);
+    for k in 0..=bands {
+        mesh.vertices.extend(ring(height * f64::from(k) / f64::from(bands)));
+    }
+    for k in 0..bands {
+        for j in 0..segments {
+            let next = (j + 1) % segments;
+            let (b0, b1) = (k * segments + j, k * segments + next);
+            let (t0, t1) = ((k + 1) * segments + j, (k + 1) * segments + next);
+            mesh.triangles.push([b0, b1, t1]);
+            mesh.triangles.push([b0, t1, t0]);
+        }
     }
     for (z, up) in [(0.0, false), (height, true)] {
         let centre = mesh.vertices.len() as u32;
@@ -142,14 +147,8 @@ impl Dome {
     }
 }
 
-/// Appends `other` to `mesh` (vertex indices shifted).
-pub(crate) fn append(mesh: &mut TriMesh, other: &TriMesh) {
-    let base = mesh.vertices.len() as u32;
-    mesh.vertices.extend_from_slice(&other.vertices);
-    mesh.triangles.extend(other.triangles.iter().map(|t| [t[0] + base, t[1] + base, t[2] + base]));
-}
-
 /// Signed volume enclosed by a closed mesh (positive when its triangles face outward).
+#[cfg(test)]
 pub(crate) fn signed_volume(mesh: &TriMesh) -> f64 {
     mesh.triangles
         .iter()

@@ -1,5 +1,5 @@
 //! Piercing-time shots: world = the robot base. The workpiece lies 0.6-0.9 m in front of the robot,
-//! its tag turned towards it, flat on the floor or tilted 30 degrees on a support ramp; the arm takes
+//! its tag turned partly towards it, flat on the floor or tilted 30 degrees on a support ramp; the arm takes
 //! one to three views that see the tag well.
 
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -7,15 +7,15 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::camera::DepthCamera;
 use crate::error::{Error, Result};
+use crate::sim::LABEL_OTHER;
 use crate::sim::ShotPose;
-use crate::sim::layout::{FLOOR, WORKPIECE, floor_mesh, tag_print, yaw_at};
+use crate::sim::layout::{FLOOR, FLOOR_HALF_M, WORKPIECE, tag_print, yaw_at};
 use crate::sim::random::{Stream, normal, rng, uniform};
 use crate::sim::rig::{BASE_HEIGHT, RigView, look_at, true_ee_from_camera};
 use crate::sim::shapes::quad;
 use crate::sim::tagview::observe_tag;
 use crate::sim::workpiece::Workpiece;
 use crate::sim::world::{Material, Texture, World, WorldBuilder};
-use crate::sim::LABEL_OTHER;
 
 const SUPPORT: Material = Material { label: LABEL_OTHER, albedo: [168.0, 146.0, 112.0], texture: Texture::Plain };
 /// Tilt of the `tilt30` pose, degrees.
@@ -34,14 +34,18 @@ pub(crate) struct ShotPlan {
 }
 
 /// A tilt that keeps the tag facing the robot and not downwards.
-fn tilt(rng: &mut ChaCha8Rng, tag_normal: &Vector3<f64>, toward_robot: &Vector3<f64>) -> (UnitQuaternion<f64>, Vector3<f64>) {
+fn tilt(
+    rng: &mut ChaCha8Rng,
+    tag_normal: &Vector3<f64>,
+    toward_robot: &Vector3<f64>,
+) -> (UnitQuaternion<f64>, Vector3<f64>) {
     let angle = TILT_DEG.to_radians();
     for _ in 0..100 {
         let az = uniform(rng, 0.0, std::f64::consts::TAU);
         let axis = Vector3::new(az.cos(), az.sin(), 0.0);
         let rotation = UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), angle);
         let n = rotation * tag_normal;
-        if n.z >= -0.05 && n.xy().normalize().dot(&toward_robot.xy()) > 0.5 {
+        if n.z >= -0.05 && n.xy().normalize().dot(&toward_robot.xy()) > 0.2 {
             return (rotation, axis);
         }
     }
@@ -49,13 +53,23 @@ fn tilt(rng: &mut ChaCha8Rng, tag_normal: &Vector3<f64>, toward_robot: &Vector3<
     (UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), angle), axis)
 }
 
-/// Places the workpiece: returns `T_world_object`, the tilt axis, and the support ramp (object frame).
-fn place(wp: &Workpiece, pose: ShotPose, rng: &mut ChaCha8Rng) -> (Isometry3<f64>, Option<Vector3<f64>>, Option<[Point3<f64>; 4]>) {
+/// Where the workpiece lies.
+struct Placement {
+    world_from_object: Isometry3<f64>,
+    tilt_axis: Option<Vector3<f64>>,
+    /// Corners of the support ramp, object frame.
+    ramp: Option<[Point3<f64>; 4]>,
+}
+
+/// Places the workpiece, its tag turned 25-65 degrees away from facing the robot (so the arm can
+/// put the camera in front of it without hitting the robot's own base).
+fn place(wp: &Workpiece, pose: ShotPose, rng: &mut ChaCha8Rng) -> Placement {
     let (x, y) = (uniform(rng, 0.6, 0.9), uniform(rng, -0.15, 0.15));
     let [x0, y0, x1, y1] = wp.footprint;
     let fc = Vector3::new((x0 + x1) / 2.0, (y0 + y1) / 2.0, 0.0);
     let n_obj = wp.object_from_tag.rotation * Vector3::z();
-    let desired = (-y).atan2(-x) + uniform(rng, -35f64, 35.0).to_radians();
+    let side = if uniform(rng, 0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
+    let desired = (-y).atan2(-x) + side * uniform(rng, 25f64, 65.0).to_radians();
     let yawed = yaw_at(Vector3::zeros(), desired - n_obj.y.atan2(n_obj.x)) * yaw_at(-fc, 0.0);
     let toward_robot = Vector3::new(-x, -y, 0.0).normalize();
     let (rotation, axis, ramp) = match pose {
@@ -70,7 +84,7 @@ fn place(wp: &Workpiece, pose: ShotPose, rng: &mut ChaCha8Rng) -> (Isometry3<f64
     let unplaced = Isometry3::from_parts(Translation3::identity(), rotation) * yawed;
     let lowest = wp.cad.vertices.iter().chain(ramp.iter().flatten()).map(|p| (unplaced * p).z).fold(f64::MAX, f64::min);
     let world_from_object = Isometry3::translation(x, y, -BASE_HEIGHT - lowest) * unplaced;
-    (world_from_object, axis, ramp)
+    Placement { world_from_object, tilt_axis: axis, ramp }
 }
 
 /// One shot view: the camera 0.45-0.65 m from the tag, 20-45 degrees above its normal and turned by
@@ -94,11 +108,11 @@ fn shot_view(rng: &mut ChaCha8Rng, wp: &Workpiece, world_from_object: &Isometry3
 /// [`Error::Invalid`] when the scene cannot be built or no reachable camera pose sees the tag.
 pub(crate) fn plan_shot(wp: &Workpiece, pose: ShotPose, n: usize, seed: u64, camera: &DepthCamera) -> Result<ShotPlan> {
     let mut rng = rng(seed, Stream::Shot, 0, 0);
-    let (world_from_object, tilt_axis, ramp) = place(wp, pose, &mut rng);
+    let Placement { world_from_object, tilt_axis, ramp } = place(wp, pose, &mut rng);
     let mut builder = WorldBuilder::default();
     builder.add(&wp.cad, &world_from_object, WORKPIECE);
     let centre = world_from_object * wp.centre;
-    builder.add(&floor_mesh(centre.x, centre.y, -BASE_HEIGHT), &Isometry3::identity(), FLOOR);
+    builder.floor((centre.x, centre.y, -BASE_HEIGHT), FLOOR_HALF_M, FLOOR);
     if let Some(corners) = ramp {
         builder.add(&quad(corners), &world_from_object, SUPPORT);
     }
@@ -112,7 +126,7 @@ pub(crate) fn plan_shot(wp: &Workpiece, pose: ShotPose, n: usize, seed: u64, cam
             .map(|_| shot_view(&mut rng, wp, &world_from_object, spread))
             .find(|c| {
                 let p = c.translation.vector;
-                let reachable = p.z > 0.25 - BASE_HEIGHT && p.xy().norm() < 1.1 && p.x > 0.1;
+                let reachable = p.z > 0.25 - BASE_HEIGHT && (0.3..1.1).contains(&p.norm());
                 reachable && {
                     let seen = observe_tag(&world, camera, &world_from_tag, wp.tag_size, c);
                     seen.good() && seen.incidence_deg < 55.0

@@ -58,7 +58,8 @@ pub(crate) fn observe_tag(
     world_from_camera: &Isometry3<f64>,
 ) -> TagObservation {
     let h = size / 2.0;
-    let corners_tag = [Point3::new(-h, -h, 0.0), Point3::new(h, -h, 0.0), Point3::new(h, h, 0.0), Point3::new(-h, h, 0.0)];
+    let corners_tag =
+        [Point3::new(-h, -h, 0.0), Point3::new(h, -h, 0.0), Point3::new(h, h, 0.0), Point3::new(-h, h, 0.0)];
     let eye = Point3::from(world_from_camera.translation.vector);
     let centre = Point3::from(world_from_tag.translation.vector);
     let normal = world_from_tag.rotation * Vector3::z();

@@ -64,11 +64,7 @@ fn box_workpiece() -> Workpiece {
         radius: (w * w + d * d).sqrt() / 2.0,
         object_from_tag: tag_frame(Point3::new(w / 2.0, 0.0, h / 2.0), -Vector3::y(), Vector3::z()),
         tag_size: 0.08,
-        targets: vec![Target {
-            name: "top-centre".into(),
-            p: Point3::new(w / 2.0, d / 2.0, h),
-            n: Vector3::z(),
-        }],
+        targets: vec![Target { name: "top-centre".into(), p: Point3::new(w / 2.0, d / 2.0, h), n: Vector3::z() }],
     }
 }
 
@@ -87,11 +83,7 @@ fn shell_workpiece() -> Workpiece {
         radius: s.a,
         object_from_tag: tag_frame(on_surface(tag_at.0, tag_at.1), s.normal(tag_at.0, tag_at.1), Vector3::z()),
         tag_size: 0.09,
-        targets: vec![Target {
-            name: "groove".into(),
-            p: on_surface(s.groove_x, 0.0),
-            n: s.normal(s.groove_x, 0.0),
-        }],
+        targets: vec![Target { name: "groove".into(), p: on_surface(s.groove_x, 0.0), n: s.normal(s.groove_x, 0.0) }],
     }
 }
 

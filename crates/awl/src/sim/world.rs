@@ -8,6 +8,7 @@ use parry3d_f64::shape::TriMesh as ParryMesh;
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
+use crate::sim::shade::to_linear;
 use crate::sim::tag36h11::{TAG_BORDER_MODULES, TAG_MODULES};
 
 /// How a material's albedo varies over its surface.
@@ -86,11 +87,37 @@ pub(crate) struct World {
     face_normals: Vec<Vector3<f64>>,
     tri_material: Vec<u16>,
     materials: Vec<Material>,
+    linear_albedo: Vec<[f64; 3]>,
     bvh: ParryMesh,
+    floor: Option<Floor>,
     /// The printed tag, if any.
     pub tag: Option<TagPrint>,
     /// Seed of the procedural floor texture.
     pub texture_seed: u64,
+}
+
+/// Triangle index reported for hits on the floor (which is a plane, not part of the BVH).
+const FLOOR_TRIANGLE: u32 = u32::MAX;
+
+/// The floor: the square `|x - cx|, |y - cy| <= half` of the plane at height `z`, cast analytically so
+/// the BVH only holds the objects (most rays end on the floor and never enter the BVH).
+#[derive(Debug, Clone, Copy)]
+struct Floor {
+    z: f64,
+    centre: (f64, f64),
+    half: f64,
+    material: u16,
+}
+
+impl Floor {
+    fn cast(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<f64> {
+        let t = (self.z - origin.z) / dir.z;
+        if !(t > 0.0 && t < max_t) {
+            return None;
+        }
+        let (x, y) = (origin.x + dir.x * t, origin.y + dir.y * t);
+        ((x - self.centre.0).abs() <= self.half && (y - self.centre.1).abs() <= self.half).then_some(t)
+    }
 }
 
 /// Collects meshes and materials, then builds the [`World`].
@@ -101,6 +128,7 @@ pub(crate) struct WorldBuilder {
     triangles: Vec<[u32; 3]>,
     tri_material: Vec<u16>,
     materials: Vec<Material>,
+    floor: Option<Floor>,
 }
 
 fn vertex_normals(mesh: &TriMesh) -> Vec<Vector3<f64>> {
@@ -116,17 +144,28 @@ fn vertex_normals(mesh: &TriMesh) -> Vec<Vector3<f64>> {
 }
 
 impl WorldBuilder {
-    /// Adds `mesh` moved by `world_from_local`, with `material`.
-    pub(crate) fn add(&mut self, mesh: &TriMesh, world_from_local: &Isometry3<f64>, material: Material) {
+    fn material_index(&mut self, material: Material) -> u16 {
         let index = self.materials.iter().position(|m| *m == material).unwrap_or_else(|| {
             self.materials.push(material);
             self.materials.len() - 1
         });
+        index as u16
+    }
+
+    /// Sets the floor: the square of half-size `half` centred under `(x, y)` at height `z`.
+    pub(crate) fn floor(&mut self, (x, y, z): (f64, f64, f64), half: f64, material: Material) {
+        let material = self.material_index(material);
+        self.floor = Some(Floor { z, centre: (x, y), half, material });
+    }
+
+    /// Adds `mesh` moved by `world_from_local`, with `material`.
+    pub(crate) fn add(&mut self, mesh: &TriMesh, world_from_local: &Isometry3<f64>, material: Material) {
+        let index = self.material_index(material);
         let base = self.vertices.len() as u32;
         self.vertices.extend(mesh.vertices.iter().map(|p| world_from_local * p));
         self.normals.extend(vertex_normals(mesh).iter().map(|n| world_from_local.rotation * n));
         self.triangles.extend(mesh.triangles.iter().map(|t| t.map(|i| i + base)));
-        self.tri_material.extend(std::iter::repeat_n(index as u16, mesh.triangles.len()));
+        self.tri_material.extend(std::iter::repeat_n(index, mesh.triangles.len()));
     }
 
     /// Builds the BVH.
@@ -134,7 +173,7 @@ impl WorldBuilder {
     /// # Errors
     /// [`Error::Invalid`] when the scene is empty or parry refuses the mesh.
     pub(crate) fn build(self, tag: Option<TagPrint>, texture_seed: u64) -> Result<World> {
-        if self.materials.is_empty() {
+        if self.triangles.is_empty() {
             return Err(Error::invalid("simulated scene", "the scene has no mesh"));
         }
         let points: Vec<PVector> = self.vertices.iter().map(|p| PVector::new(p.x, p.y, p.z)).collect();
@@ -154,8 +193,10 @@ impl WorldBuilder {
             triangles: self.triangles,
             face_normals,
             tri_material: self.tri_material,
+            linear_albedo: self.materials.iter().map(|m| m.albedo.map(to_linear)).collect(),
             materials: self.materials,
             bvh,
+            floor: self.floor,
             tag,
             texture_seed,
         })
@@ -165,22 +206,33 @@ impl WorldBuilder {
 impl World {
     /// The first hit of the ray `origin + t * dir` with `t < max_t`.
     pub(crate) fn cast(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> Option<Hit> {
+        let floor_t = self.floor.as_ref().and_then(|f| f.cast(origin, dir, max_t));
         let ray = Ray::new(PVector::new(origin.x, origin.y, origin.z), PVector::new(dir.x, dir.y, dir.z));
-        let hit = self.bvh.cast_local_ray_and_get_normal(&ray, max_t, false)?;
-        let t = hit.time_of_impact;
-        Some(Hit { t, point: origin + dir * t, triangle: hit.subshape })
+        match self.bvh.cast_local_ray_and_get_normal(&ray, floor_t.unwrap_or(max_t), false) {
+            Some(hit) => {
+                let t = hit.time_of_impact;
+                Some(Hit { t, point: origin + dir * t, triangle: hit.subshape })
+            }
+            None => floor_t.map(|t| Hit { t, point: origin + dir * t, triangle: FLOOR_TRIANGLE }),
+        }
     }
 
-    /// Whether anything lies on the segment `origin + t * dir`, `t` in `(0, max_t)`.
-    pub(crate) fn blocked(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_t: f64) -> bool {
-        let ray = Ray::new(PVector::new(origin.x, origin.y, origin.z), PVector::new(dir.x, dir.y, dir.z));
-        self.bvh.intersects_local_ray(&ray, max_t)
+    fn material_index(&self, triangle: u32) -> usize {
+        let index = match (triangle, self.floor) {
+            (FLOOR_TRIANGLE, Some(floor)) => floor.material,
+            _ => self.tri_material.get(triangle as usize).copied().unwrap_or(0),
+        };
+        usize::from(index).min(self.materials.len() - 1)
     }
 
     /// The material of a triangle.
     pub(crate) fn material(&self, triangle: u32) -> &Material {
-        let index = self.tri_material.get(triangle as usize).copied().unwrap_or(0);
-        &self.materials[usize::from(index).min(self.materials.len() - 1)]
+        &self.materials[self.material_index(triangle)]
+    }
+
+    /// The linear albedo of a triangle's material.
+    pub(crate) fn linear_albedo(&self, triangle: u32) -> [f64; 3] {
+        self.linear_albedo[self.material_index(triangle)]
     }
 
     /// The geometric (flat) unit normal of a triangle.
@@ -190,7 +242,7 @@ impl World {
 
     /// The smooth shading normal at a hit (vertex normals interpolated barycentrically).
     pub(crate) fn shading_normal(&self, hit: &Hit) -> Vector3<f64> {
-        let Some(t) = self.triangles.get(hit.triangle as usize) else { return Vector3::z() };
+        let Some(t) = self.triangles.get(hit.triangle as usize) else { return self.face_normal(hit.triangle) };
         let [a, b, c] = t.map(|i| self.vertices[i as usize]);
         let (v0, v1, v2) = (b - a, c - a, hit.point - a);
         let (d00, d01, d11) = (v0.dot(&v0), v0.dot(&v1), v1.dot(&v1));

@@ -41,7 +41,11 @@ fn write_views(tmp: &Path, sim: &Simulation) -> Result<()> {
         fs::create_dir_all(tmp.join(sub)).map_err(|e| Error::io(tmp.join(sub), e))?;
     }
     sim.views.par_iter().enumerate().try_for_each(|(i, view)| {
-        let spec = sim.scan.views.get(i).ok_or_else(|| Error::invalid("simulation", format!("no manifest entry for view {i}")))?;
+        let spec = sim
+            .scan
+            .views
+            .get(i)
+            .ok_or_else(|| Error::invalid("simulation", format!("no manifest entry for view {i}")))?;
         let ViewData::Depth { depth, color } = &spec.data else {
             return Err(Error::invalid("simulation", format!("view {i} is not a depth view")));
         };
@@ -49,7 +53,12 @@ fn write_views(tmp: &Path, sim: &Simulation) -> Result<()> {
         if let Some(color) = color {
             write_color_png(&tmp.join(color), &view.color)?;
         }
-        let label = sim.truth.views.get(i).and_then(|t| t.label.clone()).unwrap_or_else(|| PathBuf::from(format!("labels/{i:06}.png")));
+        let label = sim
+            .truth
+            .views
+            .get(i)
+            .and_then(|t| t.label.clone())
+            .unwrap_or_else(|| PathBuf::from(format!("labels/{i:06}.png")));
         write_atomic(&tmp.join(label), &label_png(&view.labels)?)
     })
 }

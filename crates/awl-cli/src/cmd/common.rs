@@ -1,0 +1,49 @@
+//! Helpers shared by subcommands: thread count, progress display, JSON output.
+
+use std::io::IsTerminal;
+use std::path::Path;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Sets the number of worker threads once for the whole process (default: all cores).
+pub fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
+    if let Some(n) = threads {
+        anyhow::ensure!(n > 0, "--threads must be at least 1");
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("cannot set up the thread pool")?;
+    }
+    Ok(())
+}
+
+/// A stage progress bar on stderr, hidden when `quiet` or when stderr is not a terminal.
+pub fn stage_bar(quiet: bool) -> ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(1);
+    let style = ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+        .unwrap_or_else(|_| ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
+/// Writes pretty JSON atomically.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    awl::io::write_atomic(path, text.as_bytes())?;
+    Ok(())
+}
+
+/// Refuses to write `output` when it is one of the `inputs` (same file after resolving links).
+pub fn refuse_overwriting_inputs(output: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
+    let resolve = |p: &Path| std::fs::canonicalize(p).ok();
+    if let Some(out) = resolve(output) {
+        for input in inputs {
+            if resolve(input).as_deref() == Some(out.as_path()) {
+                anyhow::bail!("{}: refusing to overwrite an input file", output.display());
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,76 @@
+//! `awl fuse SCAN_DIR -o OUT_DIR`: the modeling pipeline.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use awl::io::mesh::write_cloud;
+use awl::io::scan::read_scan;
+use awl::pipeline::{FuseConfig, ViewStatus, fuse};
+
+use super::common::{set_threads, stage_bar, write_json};
+
+/// Arguments of `awl fuse`.
+#[derive(clap::Args)]
+pub struct FuseArgs {
+    /// The scan folder (awl-scan/1).
+    pub scan: PathBuf,
+    /// Output folder: model.ply and report.json are written there.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// A TOML file overriding parameters of the pipeline (see report.json's `config` for all keys).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Worker threads (default: all cores). Results are identical for any count.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// No progress bar, no summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print the report as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
+    let Some(path) = path else { return Ok(FuseConfig::default()) };
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    toml::from_str(&text).with_context(|| format!("{}: invalid fuse config", path.display()))
+}
+
+/// Runs `awl fuse`.
+pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
+    set_threads(args.threads)?;
+    let config = load_config(args.config.as_ref())?;
+    let scan = read_scan(&args.scan)?;
+    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
+    let bar = stage_bar(args.quiet);
+    let progress = |stage: &str, done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        bar.set_message(stage.to_string());
+    };
+    let out = fuse(&scan, &config, &progress)?;
+    bar.finish_and_clear();
+    write_cloud(&args.output.join("model.ply"), &out.model)?;
+    write_json(&args.output.join("report.json"), &out.report)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out.report)?);
+    } else if !args.quiet {
+        let r = &out.report;
+        let count = |s: ViewStatus| r.views.iter().filter(|v| v.status == s).count();
+        println!(
+            "fused {} views ({} registered, {} rejected, {} skipped) into {} points in {:.2} s",
+            r.views.len(),
+            count(ViewStatus::Accepted) + count(ViewStatus::Anchor),
+            count(ViewStatus::Excluded) + count(ViewStatus::SeedKept),
+            count(ViewStatus::Skipped),
+            r.model_points,
+            r.seconds
+        );
+        for w in &r.warnings {
+            println!("warning: {w}");
+        }
+        println!("wrote {}", args.output.join("model.ply").display());
+    }
+    Ok(())
+}

@@ -1,0 +1,182 @@
+//! `FuseConfig`: every stage's parameters, with documented defaults (TOML/JSON, unknown keys refused).
+
+use serde::{Deserialize, Serialize};
+
+use crate::cluster::DbscanParams;
+use crate::filter::outlier::SorParams;
+use crate::filter::voxel::VoxelParams;
+use crate::normals::NormalParams;
+use crate::registration::{IcpLevel, IcpParams};
+use crate::segment::{FloorParams, PlaneParams};
+use crate::smooth::MlsParams;
+
+/// What to do with a view whose registration the rule rejects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RejectPolicy {
+    /// Leave the view out of the model (default: a wrong pose never reaches the model).
+    Exclude,
+    /// Merge the view at its recorded (seed) pose: the reference system's fallback.
+    KeepSeed,
+}
+
+/// When a view's registration is accepted. Every check must pass; the first failing one is reported.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AcceptanceRule {
+    /// The finest ICP level must have converged. Default true.
+    pub require_converged: bool,
+    /// Fraction of the view's points with a model point inside the final gate, at least. Default 0.25.
+    pub min_fitness: f64,
+    /// Inlier point-to-plane RMSE at most, metres. Default 0.004 (about twice the sensor noise at 1 m).
+    pub max_inlier_rmse_m: f64,
+    /// Smallest / largest eigenvalue of the final ICP system, at least. Default 1e-3 (a flat wall
+    /// alone gives ~1e-6: it cannot fix the view's slide along the wall).
+    pub min_conditioning: f64,
+    /// Largest accepted move of the view's centroid away from where the seed put it, metres.
+    /// Default 0.075: 1.5 x the expected SLAM-level seed error (5 cm).
+    pub max_correction_m: f64,
+    /// Largest accepted rotation away from the seed, radians. Default 7.5 degrees (1.5 x 5 degrees).
+    pub max_correction_rad: f64,
+}
+
+impl Default for AcceptanceRule {
+    fn default() -> Self {
+        Self {
+            require_converged: true,
+            min_fitness: 0.25,
+            max_inlier_rmse_m: 0.004,
+            min_conditioning: 1e-3,
+            max_correction_m: 0.075,
+            max_correction_rad: 7.5f64.to_radians(),
+        }
+    }
+}
+
+/// Registration of the views.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RegistrationConfig {
+    /// ICP of each view against the growing model. Default: four levels from 15 mm voxels and a
+    /// 10 cm gate (SLAM-level seed errors of 5 cm / 5 deg) down to 2 mm voxels and a 5 mm gate;
+    /// a level converges when a step moves less than 0.1 mm and 1e-4 rad (the noise floor of the
+    /// steps on realistic depth data).
+    pub icp: IcpParams,
+    /// Acceptance rule.
+    pub accept: AcceptanceRule,
+    /// What happens to rejected views.
+    pub on_reject: RejectPolicy,
+    /// Rounds of refining every accepted view against all the others after the sequential pass.
+    /// Default 2.
+    pub refine_rounds: usize,
+    /// ICP levels of the refinement rounds (small corrections). Default: 4 mm / 12 mm, 2 mm / 5 mm.
+    pub refine_levels: Vec<IcpLevel>,
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        let level =
+            |voxel_m, max_correspondence_m, max_iterations| IcpLevel { voxel_m, max_correspondence_m, max_iterations };
+        Self {
+            icp: IcpParams {
+                levels: vec![
+                    level(0.015, 0.10, 30),
+                    level(0.006, 0.03, 30),
+                    level(0.003, 0.01, 30),
+                    level(0.002, 0.005, 30),
+                ],
+                convergence_translation_m: 1e-4,
+                convergence_rotation_rad: 1e-4,
+                ..IcpParams::default()
+            },
+            accept: AcceptanceRule::default(),
+            on_reject: RejectPolicy::Exclude,
+            refine_rounds: 2,
+            refine_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
+        }
+    }
+}
+
+/// Isolation of the object: floor removal and clustering.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IsolateConfig {
+    /// Remove the floor (the lowest large plane perpendicular to world z). Default true.
+    pub remove_floor: bool,
+    /// Floor search; its `distance_m` is the band above the floor that goes with it. Default 4 mm.
+    pub floor: FloorParams,
+    /// Keep one DBSCAN cluster. Default true.
+    pub cluster: bool,
+    /// DBSCAN parameters. Default eps 10 mm, 10 points.
+    pub dbscan: DbscanParams,
+    /// Keep the cluster holding the model point nearest this world point (metres) instead of the
+    /// largest cluster.
+    pub seed_point: Option<[f64; 3]>,
+}
+
+impl Default for IsolateConfig {
+    fn default() -> Self {
+        let mut floor = FloorParams::default();
+        floor.plane.distance_m = 0.004;
+        Self { remove_floor: true, floor, cluster: true, dbscan: DbscanParams::default(), seed_point: None }
+    }
+}
+
+/// The region of interest: the object is where the cameras look.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RoiConfig {
+    /// Keep only points within this distance of the point the cameras look at (the least-squares
+    /// intersection of the views' optical axes, from the recorded poses), metres; `None` keeps
+    /// everything. Default 1.0: the simulated 50 cm workpieces and their surroundings; raise it
+    /// for bigger workpieces. The focus point found is written in the report.
+    pub radius_m: Option<f64>,
+}
+
+impl Default for RoiConfig {
+    fn default() -> Self {
+        Self { radius_m: Some(1.0) }
+    }
+}
+
+/// Every parameter of `awl fuse`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FuseConfig {
+    /// Region of interest around the point the cameras look at.
+    pub roi: RoiConfig,
+    /// Per-view voxel down-sampling. Default 2 mm.
+    pub view_voxel: VoxelParams,
+    /// Per-view statistical outlier removal. Default 20 neighbours, 2.0 sigma.
+    pub outliers: SorParams,
+    /// Per-view normals, oriented toward the view's camera. Default 20 neighbours within 10 mm.
+    pub normals: NormalParams,
+    /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
+    /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
+    /// hypotheses, within 15 degrees of world z.
+    pub snap_plane: Option<PlaneParams>,
+    /// Registration.
+    pub registration: RegistrationConfig,
+    /// Voxel of the merged model. Default 2 mm.
+    pub merge_voxel: VoxelParams,
+    /// Floor removal and clustering.
+    pub isolate: IsolateConfig,
+    /// MLS smoothing of the model; `None` to skip. Default 6 mm radius, quadratic.
+    pub smoothing: Option<MlsParams>,
+}
+
+impl Default for FuseConfig {
+    fn default() -> Self {
+        Self {
+            roi: RoiConfig::default(),
+            view_voxel: VoxelParams::default(),
+            outliers: SorParams::default(),
+            normals: NormalParams::default(),
+            snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
+            registration: RegistrationConfig::default(),
+            merge_voxel: VoxelParams::default(),
+            isolate: IsolateConfig::default(),
+            smoothing: Some(MlsParams::default()),
+        }
+    }
+}

@@ -1,0 +1,17 @@
+//! The modeling pipeline (`awl fuse`): views with recorded poses -> one model of the object alone.
+//!
+//! `fuse::fuse` reads like the method: prepare each view (depth -> points, voxel, outliers, normals),
+//! register views sequentially against the growing model (coarse-to-fine point-to-plane ICP seeded
+//! by the recorded poses, with an explicit acceptance rule), refine every view against all the
+//! others, merge, remove the floor, keep the object's cluster, smooth (MLS).
+
+pub mod config;
+pub mod fuse;
+mod isolate;
+mod multiview;
+mod prepare;
+pub mod report;
+
+pub use config::{AcceptanceRule, FuseConfig, RejectPolicy, RoiConfig};
+pub use fuse::{FuseOutput, Progress, fuse};
+pub use report::{FuseReport, StageReport, ViewReport, ViewStatus};

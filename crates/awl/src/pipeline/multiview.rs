@@ -1,0 +1,204 @@
+//! Registration of all views: the sequential scheme (each view against the growing model, seeded
+//! by its recorded pose, judged by the acceptance rule), then rounds of refining every view
+//! against all the others. The anchor view (the first usable one) fixes the model frame.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use super::config::{AcceptanceRule, RegistrationConfig, RejectPolicy};
+use super::prepare::{PreparedView, Views};
+use super::report::{ViewReport, ViewStatus};
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::filter::voxel::{VoxelParams, downsample};
+use crate::registration::{IcpParams, IcpResult, register};
+use crate::transform::rows_from_isometry;
+
+/// Final poses (`None`: left out) and one report per scan view.
+pub(crate) struct Registered {
+    pub poses: Vec<Option<Isometry3<f64>>>,
+    pub reports: Vec<ViewReport>,
+}
+
+fn centroid(cloud: &PointCloud) -> Point3<f64> {
+    let sum = cloud.points.iter().fold(Vector3::zeros(), |a, p| a + p.coords.cast::<f64>());
+    Point3::from(sum / cloud.len().max(1) as f64)
+}
+
+/// Centroid displacement (m) and rotation (rad) between two poses of one view.
+fn correction(view: &PreparedView, from: &Isometry3<f64>, to: &Isometry3<f64>) -> (f64, f64) {
+    let c = centroid(&view.cloud);
+    ((to * c - from * c).norm(), (from.inverse() * to).rotation.angle())
+}
+
+/// The acceptance rule: `Ok` or the first failing check, with its numbers.
+fn judge(rule: &AcceptanceRule, r: &IcpResult, moved: (f64, f64)) -> std::result::Result<(), String> {
+    if rule.require_converged && !r.converged {
+        return Err(format!("ICP did not converge in {} iterations", r.iterations));
+    }
+    if r.fitness < rule.min_fitness {
+        return Err(format!("fitness {:.3} < {:.3}", r.fitness, rule.min_fitness));
+    }
+    if r.inlier_rmse_m > rule.max_inlier_rmse_m {
+        return Err(format!("inlier RMSE {:.2} mm > {:.2} mm", r.inlier_rmse_m * 1e3, rule.max_inlier_rmse_m * 1e3));
+    }
+    if r.conditioning < rule.min_conditioning {
+        return Err(format!(
+            "ill-conditioned (degenerate geometry): {:.1e} < {:.1e}",
+            r.conditioning, rule.min_conditioning
+        ));
+    }
+    if moved.0 > rule.max_correction_m {
+        return Err(format!("correction {:.1} mm > {:.1} mm", moved.0 * 1e3, rule.max_correction_m * 1e3));
+    }
+    if moved.1 > rule.max_correction_rad {
+        return Err(format!(
+            "correction {:.2} deg > {:.2} deg",
+            moved.1.to_degrees(),
+            rule.max_correction_rad.to_degrees()
+        ));
+    }
+    Ok(())
+}
+
+fn blank_report(index: usize, view: &std::result::Result<PreparedView, String>) -> ViewReport {
+    let (status, reason, points, seed) = match view {
+        Ok(v) => (ViewStatus::Excluded, String::new(), v.cloud.len(), Some(rows_from_isometry(&v.seed))),
+        Err(e) => (ViewStatus::Skipped, e.clone(), 0, None),
+    };
+    ViewReport {
+        index,
+        status,
+        reason,
+        points,
+        seed,
+        pose: None,
+        correction_mm: 0.0,
+        correction_deg: 0.0,
+        iterations: 0,
+        fitness: 0.0,
+        inlier_rmse_mm: 0.0,
+        conditioning: 0.0,
+        converged: false,
+        levels: Vec::new(),
+    }
+}
+
+fn record(report: &mut ViewReport, r: &IcpResult) {
+    report.iterations += r.iterations;
+    report.fitness = r.fitness;
+    report.inlier_rmse_mm = r.inlier_rmse_m * 1e3;
+    report.conditioning = r.conditioning;
+    report.converged = r.converged;
+    report.levels = r.levels.clone();
+}
+
+/// The merged model of the views in `members` at `poses`, down-sampled.
+fn model_of(
+    views: &Views,
+    poses: &[Option<Isometry3<f64>>],
+    members: impl Iterator<Item = usize>,
+    voxel: &VoxelParams,
+) -> Result<PointCloud> {
+    let mut model = PointCloud::default();
+    for i in members {
+        if let (Ok(view), Some(pose)) = (&views[i], poses[i]) {
+            model.extend(&view.cloud.transformed(&pose));
+        }
+    }
+    downsample(&model, voxel)
+}
+
+/// The unregistered view whose seed camera is nearest to a merged view's camera (ties: lowest index).
+fn next_view(views: &Views, remaining: &[usize], merged: &[usize]) -> usize {
+    let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
+    let mut best = (f64::INFINITY, 0);
+    for (pos, &i) in remaining.iter().enumerate() {
+        let d = merged.iter().map(|&m| (centre(i) - centre(m)).norm()).fold(f64::INFINITY, f64::min);
+        if d < best.0 {
+            best = (d, pos);
+        }
+    }
+    best.1
+}
+
+/// Registers every usable view; see the module docs.
+///
+/// # Errors
+/// [`Error::Invalid`] when no view is usable; errors of the ICP and voxel stages.
+pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: &VoxelParams) -> Result<Registered> {
+    let mut reports: Vec<ViewReport> = views.iter().enumerate().map(|(i, v)| blank_report(i, v)).collect();
+    let mut poses: Vec<Option<Isometry3<f64>>> = vec![None; views.len()];
+    let mut remaining: Vec<usize> = (0..views.len()).filter(|&i| views[i].is_ok()).collect();
+    if remaining.is_empty() {
+        return Err(Error::invalid("scan", "no usable view (see the per-view reasons)"));
+    }
+    let anchor = remaining.remove(0);
+    let seed_of = |i: usize| views[i].as_ref().map(|v| v.seed).unwrap_or_else(|_| Isometry3::identity());
+    poses[anchor] = Some(seed_of(anchor));
+    reports[anchor].status = ViewStatus::Anchor;
+    reports[anchor].reason = "first usable view: fixes the model frame".into();
+    let mut merged = vec![anchor];
+    let mut model = model_of(views, &poses, merged.iter().copied(), voxel)?;
+    while !remaining.is_empty() {
+        let i = remaining.remove(next_view(views, &remaining, &merged));
+        let Ok(view) = &views[i] else { continue };
+        let result = register(&view.cloud, &model, &view.seed, &config.icp)?;
+        record(&mut reports[i], &result);
+        match judge(&config.accept, &result, correction(view, &view.seed, &result.target_from_source)) {
+            Ok(()) => {
+                poses[i] = Some(result.target_from_source);
+                reports[i].status = ViewStatus::Accepted;
+            }
+            Err(reason) => {
+                reports[i].reason = reason;
+                if config.on_reject == RejectPolicy::KeepSeed {
+                    poses[i] = Some(view.seed);
+                    reports[i].status = ViewStatus::SeedKept;
+                }
+            }
+        }
+        if let Some(pose) = poses[i] {
+            model.extend(&view.cloud.transformed(&pose));
+            model = downsample(&model, voxel)?;
+            merged.push(i);
+        }
+    }
+    refine(views, config, voxel, anchor, &mut poses, &mut reports)?;
+    for (i, report) in reports.iter_mut().enumerate() {
+        if let (Some(pose), Ok(view)) = (poses[i], &views[i]) {
+            let (dt, dr) = correction(view, &view.seed, &pose);
+            report.correction_mm = dt * 1e3;
+            report.correction_deg = dr.to_degrees();
+            report.pose = Some(rows_from_isometry(&pose));
+        }
+    }
+    Ok(Registered { poses, reports })
+}
+
+/// Rounds of registering each accepted view against all the other merged views.
+fn refine(
+    views: &Views,
+    config: &RegistrationConfig,
+    voxel: &VoxelParams,
+    anchor: usize,
+    poses: &mut [Option<Isometry3<f64>>],
+    reports: &mut [ViewReport],
+) -> Result<()> {
+    let params = IcpParams { levels: config.refine_levels.clone(), ..config.icp.clone() };
+    for _ in 0..config.refine_rounds {
+        for i in 0..views.len() {
+            let (Ok(view), Some(current)) = (&views[i], poses[i]) else { continue };
+            if i == anchor || reports[i].status != ViewStatus::Accepted {
+                continue;
+            }
+            let others = (0..views.len()).filter(|&j| j != i);
+            let target = model_of(views, poses, others, voxel)?;
+            let result = register(&view.cloud, &target, &current, &params)?;
+            if judge(&config.accept, &result, correction(view, &current, &result.target_from_source)).is_ok() {
+                record(&mut reports[i], &result);
+                poses[i] = Some(result.target_from_source);
+            }
+        }
+    }
+    Ok(())
+}

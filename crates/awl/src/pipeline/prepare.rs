@@ -1,0 +1,155 @@
+//! Per-view stages: load (depth -> points, range crop), voxel down-sampling, statistical outlier
+//! removal, normals oriented toward the view's camera. Each stage runs over all views in parallel.
+
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use rayon::prelude::*;
+
+use super::config::FuseConfig;
+use super::report::StageReport;
+use crate::cloud::PointCloud;
+use crate::error::Result;
+use crate::filter::outlier::statistical;
+use crate::filter::voxel::downsample;
+use crate::io::scan::{Scan, load_view};
+use crate::normals::with_normals;
+use crate::segment::{PlaneParams, fit_plane_ransac};
+
+/// A view ready for registration.
+pub(crate) struct PreparedView {
+    /// Recorded `T_world_camera`.
+    pub seed: Isometry3<f64>,
+    /// Points in the camera frame with normals facing the camera.
+    pub cloud: PointCloud,
+}
+
+/// One entry per scan view: the prepared view, or why it cannot be used.
+pub(crate) type Views = Vec<std::result::Result<PreparedView, String>>;
+
+fn stage<F>(name: &str, views: &mut Views, reports: &mut Vec<StageReport>, f: F)
+where
+    F: Fn(PreparedView) -> Result<PreparedView> + Sync,
+{
+    let start = Instant::now();
+    let points_in = count(views);
+    let taken: Vec<_> = std::mem::take(views);
+    *views = taken
+        .into_par_iter()
+        .map(|v| match v {
+            Ok(view) => f(view).map_err(|e| e.to_string()),
+            Err(e) => Err(e),
+        })
+        .collect();
+    reports.push(StageReport {
+        name: name.into(),
+        points_in,
+        points_out: count(views),
+        seconds: start.elapsed().as_secs_f64(),
+    });
+}
+
+fn count(views: &Views) -> usize {
+    views.iter().flatten().map(|v| v.cloud.len()).sum()
+}
+
+fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
+    if view.cloud.is_empty() {
+        return Err(crate::Error::invalid("view", format!("no points left after {after}")));
+    }
+    Ok(view)
+}
+
+fn oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
+    let cloud = with_normals(&view.cloud, &config.normals, Some(Point3::origin()))?;
+    non_empty(PreparedView { seed: view.seed, cloud }, "normal estimation")
+}
+
+/// The point nearest to every view's optical axis (least squares), world frame; `None` when the
+/// axes do not pin one down (a single view, parallel axes).
+pub(crate) fn focus_point(seeds: &[Isometry3<f64>]) -> Option<Point3<f64>> {
+    let (mut a, mut b) = (Matrix3::zeros(), Vector3::zeros());
+    for seed in seeds {
+        let d = seed.rotation * Vector3::z();
+        let m = Matrix3::identity() - d * d.transpose();
+        a += m;
+        b += m * seed.translation.vector;
+    }
+    let eig = a.symmetric_eigen().eigenvalues;
+    if seeds.len() < 2 || eig.min() < 1e-3 * eig.max().max(1e-12) {
+        return None;
+    }
+    a.try_inverse().map(|inv| Point3::from(inv * b))
+}
+
+/// Snaps the normals of the view's dominant horizontal plane (the floor, usually) to the plane's
+/// fitted normal. Per-point normals of a noisy plane tilt by a few degrees; on a floor that fills
+/// most of a view, those tilts add up to a sideways pull that slides partially overlapping views.
+fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<PreparedView> {
+    let world: Vec<Point3<f32>> =
+        view.cloud.points.iter().map(|p| (view.seed * p.cast::<f64>()).cast::<f32>()).collect();
+    let Ok(plane) = fit_plane_ransac(&world, params) else { return Ok(view) };
+    if plane.inliers.len() * 10 < world.len() {
+        return Ok(view);
+    }
+    let n_camera = (view.seed.rotation.inverse() * plane.normal).cast::<f32>();
+    let mut cloud = view.cloud;
+    if let Some(normals) = cloud.normals.as_mut() {
+        for &i in &plane.inliers {
+            let facing = n_camera.dot(&(-cloud.points[i].coords)) >= 0.0;
+            normals[i] = if facing { n_camera } else { -n_camera };
+        }
+    }
+    Ok(PreparedView { seed: view.seed, cloud })
+}
+
+/// Loads and prepares every view; failures are kept per view as messages. Returns the focus point
+/// used for the region of interest, if any.
+pub(crate) fn prepare(
+    scan: &Scan,
+    config: &FuseConfig,
+    reports: &mut Vec<StageReport>,
+) -> (Views, Option<Point3<f64>>) {
+    let start = Instant::now();
+    let rays = scan.camera.map(|c| c.intrinsics.ray_table());
+    let mut views: Views = (0..scan.views.len())
+        .into_par_iter()
+        .map(|i| {
+            let loaded = load_view(scan, i, rays.as_deref()).map_err(|e| e.to_string())?;
+            let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera };
+            non_empty(view, "the depth range crop").map_err(|e| e.to_string())
+        })
+        .collect();
+    let loaded = count(&views);
+    reports.push(StageReport {
+        name: "load".into(),
+        points_in: loaded,
+        points_out: loaded,
+        seconds: start.elapsed().as_secs_f64(),
+    });
+    let seeds: Vec<Isometry3<f64>> = views.iter().flatten().map(|v| v.seed).collect();
+    let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
+    if let (Some(radius), Some(focus)) = (config.roi.radius_m, focus) {
+        let r2 = (radius * radius) as f32;
+        stage("roi", &mut views, reports, |v| {
+            let camera_from_world = v.seed.inverse();
+            let centre = (camera_from_world * focus).cast::<f32>();
+            let keep: Vec<usize> =
+                (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
+            non_empty(PreparedView { seed: v.seed, cloud: v.cloud.select(&keep) }, "the region-of-interest crop")
+        });
+    }
+    stage("voxel", &mut views, reports, |v| {
+        let cloud = downsample(&v.cloud, &config.view_voxel)?;
+        Ok(PreparedView { seed: v.seed, cloud })
+    });
+    stage("outliers", &mut views, reports, |v| {
+        let keep = statistical(&v.cloud, &config.outliers)?;
+        non_empty(PreparedView { seed: v.seed, cloud: v.cloud.select(&keep) }, "outlier removal")
+    });
+    stage("normals", &mut views, reports, |v| oriented(v, config));
+    if let Some(params) = &config.snap_plane {
+        stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
+    }
+    (views, focus)
+}
