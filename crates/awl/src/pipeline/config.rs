@@ -151,6 +151,10 @@ pub struct FuseConfig {
     pub outliers: SorParams,
     /// Per-view normals, oriented toward the view's camera. Default 20 neighbours within 10 mm.
     pub normals: NormalParams,
+    /// Drop points seen at more than this angle between their normal and the ray to the camera,
+    /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
+    /// noisiest. `None` keeps all. Default 80 degrees.
+    pub max_incidence_rad: Option<f64>,
     /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
     /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
     /// hypotheses, within 15 degrees of world z.
@@ -172,6 +176,7 @@ impl Default for FuseConfig {
             view_voxel: VoxelParams::default(),
             outliers: SorParams::default(),
             normals: NormalParams::default(),
+            max_incidence_rad: Some(80f64.to_radians()),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
             registration: RegistrationConfig::default(),
             merge_voxel: VoxelParams::default(),

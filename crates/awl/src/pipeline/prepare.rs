@@ -61,8 +61,15 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
 }
 
 fn oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
-    let cloud = with_normals(&view.cloud, &config.normals, Some(Point3::origin()))?;
-    non_empty(PreparedView { seed: view.seed, cloud }, "normal estimation")
+    let mut cloud = with_normals(&view.cloud, &config.normals, Some(Point3::origin()))?;
+    if let (Some(max), Some(normals)) = (config.max_incidence_rad, cloud.normals.as_ref()) {
+        let min_cos = max.cos() as f32;
+        let keep: Vec<usize> = (0..cloud.len())
+            .filter(|&i| normals[i].dot(&(-cloud.points[i].coords)) >= min_cos * cloud.points[i].coords.norm())
+            .collect();
+        cloud = cloud.select(&keep);
+    }
+    non_empty(PreparedView { seed: view.seed, cloud }, "normal estimation and the incidence filter")
 }
 
 /// The point nearest to every view's optical axis (least squares), world frame; `None` when the
