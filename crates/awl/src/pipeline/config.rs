@@ -103,7 +103,9 @@ impl Default for RegistrationConfig {
 pub struct IsolateConfig {
     /// Remove the floor (the lowest large plane perpendicular to world z). Default true.
     pub remove_floor: bool,
-    /// Floor search; its `distance_m` is the band above the floor that goes with it. Default 4 mm.
+    /// Floor search; its `distance_m` is the band above the floor that goes with it. Default 10 mm
+    /// (floor noise of the merged views reaches several mm; a thinner band leaves floor remnants that
+    /// connect the object to its clutter).
     pub floor: FloorParams,
     /// Keep one DBSCAN cluster. Default true.
     pub cluster: bool,
@@ -116,9 +118,13 @@ pub struct IsolateConfig {
 
 impl Default for IsolateConfig {
     fn default() -> Self {
-        let mut floor = FloorParams::default();
-        floor.plane.distance_m = 0.004;
-        Self { remove_floor: true, floor, cluster: true, dbscan: DbscanParams::default(), seed_point: None }
+        Self {
+            remove_floor: true,
+            floor: FloorParams::default(),
+            cluster: true,
+            dbscan: DbscanParams::default(),
+            seed_point: None,
+        }
     }
 }
 
