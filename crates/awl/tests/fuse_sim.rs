@@ -119,3 +119,22 @@ fn a_seed_off_by_10cm_10deg_is_rejected() {
     assert!(report.warnings.iter().any(|w| w.contains("view 5")), "{:?}", report.warnings);
     assert!(o.rmse_mm <= 2.0, "model still accurate: {:.2} mm", o.rmse_mm);
 }
+
+#[test]
+fn one_and_two_threads_give_the_same_model_bit_for_bit() {
+    let sim =
+        simulate(&SimParams { scene: SceneKind::Box, views: 4, seed: 5, noise: NoiseLevel::Realistic, shot: None })
+            .expect("simulate");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("scan");
+    write_simulation(&path, &sim, false).expect("write");
+    let scan = read_scan(&path).expect("read");
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        pool.install(|| fuse(&scan, &FuseConfig::default(), &|_, _, _| {}).expect("fuse"))
+    };
+    let (one, two) = (run(1), run(2));
+    assert!(one.model.len() > 10_000, "model has {} points", one.model.len());
+    assert_eq!(one.model, two.model, "model differs between 1 and 2 threads");
+    assert_eq!(one.poses, two.poses);
+}
