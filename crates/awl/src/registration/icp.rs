@@ -86,9 +86,9 @@ pub struct LevelStats {
     pub iterations: usize,
     /// True when the last step was below the convergence thresholds.
     pub converged: bool,
-    /// Fitness at the end of the level.
+    /// Fitness at the level's last linearisation (before its final, converged or last, step).
     pub fitness: f64,
-    /// Inlier point-to-plane RMSE at the end of the level, metres.
+    /// Inlier point-to-plane RMSE at the level's last linearisation, metres.
     pub inlier_rmse_m: f64,
 }
 
@@ -226,7 +226,7 @@ pub fn register(
                 break;
             }
         }
-        let (s, n) = sys.unwrap_or((System::empty(), src.len()));
+        let (s, n) = sys.unwrap_or((System::zero(), src.len()));
         levels.push(LevelStats {
             source_points: src.len(),
             target_points: tgt.len(),
@@ -237,7 +237,7 @@ pub fn register(
         });
         last = Some(s);
     }
-    let s = last.unwrap_or_else(System::empty);
+    let s = last.unwrap_or_else(System::zero);
     let fin = levels.last().copied().ok_or_else(|| Error::invalid("ICP parameters", "no levels"))?;
     Ok(IcpResult {
         target_from_source: t,

@@ -33,11 +33,7 @@ pub(crate) struct System {
 
 impl System {
     /// A system with no correspondence.
-    pub fn empty() -> Self {
-        Self::zero()
-    }
-
-    fn zero() -> Self {
+    pub fn zero() -> Self {
         Self { h: Matrix6::zeros(), g: Vector6::zeros(), inliers: 0, residual_sq: 0.0, weight: 0.0 }
     }
 
