@@ -42,7 +42,6 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     let config = load_config(args.config.as_ref())?;
     let scan = read_scan(&args.scan)?;
-    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
     let bar = stage_bar(args.quiet);
     let progress = |stage: &str, done: usize, total: usize| {
         bar.set_length(total as u64);
@@ -51,6 +50,8 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     };
     let out = fuse(&scan, &config, &progress)?;
     bar.finish_and_clear();
+    // the folder is made only once there is something to put in it
+    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
     write_cloud(&args.output.join("model.ply"), &out.model)?;
     write_json(&args.output.join("report.json"), &out.report)?;
     if args.json {

@@ -63,6 +63,11 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
             warnings.push(format!("view {i} skipped: {e}"));
         }
     }
+    if views.iter().all(|v| v.is_err()) {
+        let reasons: Vec<String> =
+            views.iter().enumerate().filter_map(|(i, v)| v.as_ref().err().map(|e| format!("view {i}: {e}"))).collect();
+        return Err(Error::invalid("scan", format!("no usable view ({})", reasons.join("; "))));
+    }
     if views.iter().filter(|v| v.is_ok()).count() == 1 {
         warnings.push("only one usable view: nothing to register, the model is that view alone".into());
     }

@@ -1,0 +1,120 @@
+//! `awl fuse` on damaged scans: a view with all-zero depth, a single-view scan, nothing left after the
+//! depth crop, a NaN pose. Clear messages; the pipeline goes on with the remaining views where that
+//! makes sense and says so in the report; nothing is written when it cannot go on.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use awl::image::DepthImage;
+use awl::io::image::{read_depth_png, write_depth_png};
+
+fn awl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_awl")).args(args).output().expect("run awl")
+}
+
+fn text(out: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
+}
+
+/// A small simulated scan (4 views, low noise) in `dir/name`.
+fn scan(dir: &Path, name: &str) -> std::path::PathBuf {
+    let path = dir.join(name);
+    let out = awl(&["simulate", "--views", "4", "--noise", "low", "--seed", "5", "-o", path.to_str().expect("utf-8")]);
+    assert!(out.status.success(), "simulate: {}", text(&out));
+    path
+}
+
+fn edit_manifest(scan: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let path = scan.join("scan.json");
+    let mut manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).expect("read scan.json")).expect("json");
+    edit(&mut manifest);
+    std::fs::write(&path, serde_json::to_string_pretty(&manifest).expect("json")).expect("write scan.json");
+}
+
+fn fuse(scan: &Path, out: &Path) -> Output {
+    awl(&["fuse", scan.to_str().expect("utf-8"), "-o", out.to_str().expect("utf-8"), "--quiet", "--json"])
+}
+
+fn report(out: &Output) -> serde_json::Value {
+    assert!(out.status.success(), "fuse failed: {}", text(out));
+    serde_json::from_slice(&out.stdout).expect("report JSON on stdout")
+}
+
+#[test]
+fn a_view_with_all_zero_depth_is_skipped_and_reported() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    let depth = scan.join("depth/000002.png");
+    let image = read_depth_png(&depth).expect("depth");
+    let zeros = DepthImage { data: vec![0; image.data.len()], ..image };
+    write_depth_png(&depth, &zeros).expect("write zeros");
+    let out = dir.path().join("out");
+    let r = report(&fuse(&scan, &out));
+    let view = &r["views"][2];
+    assert_eq!(view["status"], "skipped", "{view}");
+    assert!(view["reason"].as_str().unwrap_or("").contains("no points"), "{view}");
+    let warnings = r["warnings"].to_string();
+    assert!(warnings.contains("view 2 skipped"), "{warnings}");
+    let merged = r["views"].as_array().expect("views").iter().filter(|v| v["T_world_camera"].is_array()).count();
+    assert_eq!(merged, 3, "the other three views are merged");
+    assert!(r["model_points"].as_u64().unwrap_or(0) > 10_000 && out.join("model.ply").is_file());
+}
+
+#[test]
+fn a_single_view_scan_gives_that_view_with_a_warning() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    edit_manifest(&scan, |m| {
+        let views = m["views"].as_array_mut().expect("views");
+        views.truncate(1);
+    });
+    let r = report(&fuse(&scan, &dir.path().join("out")));
+    assert_eq!(r["views"].as_array().map(Vec::len), Some(1));
+    assert_eq!(r["views"][0]["status"], "anchor");
+    assert!(r["warnings"].to_string().contains("only one usable view"), "{}", r["warnings"]);
+    assert!(r["model_points"].as_u64().unwrap_or(0) > 1_000);
+}
+
+#[test]
+fn nothing_left_after_the_depth_crop_is_a_clear_error_and_writes_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    edit_manifest(&scan, |m| {
+        m["camera"]["depth_min"] = serde_json::json!(5.0);
+        m["camera"]["depth_max"] = serde_json::json!(6.0);
+    });
+    let out_dir = dir.path().join("out");
+    let out = fuse(&scan, &out_dir);
+    let message = text(&out);
+    assert!(!out.status.success(), "{message}");
+    assert!(message.contains("no usable view"), "{message}");
+    assert!(message.contains("depth range crop"), "the per-view reason is given: {message}");
+    assert!(!out_dir.exists(), "nothing is written");
+}
+
+#[test]
+fn a_nan_pose_names_the_file_view_and_field() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    let manifest = scan.join("scan.json");
+    let original = std::fs::read_to_string(&manifest).expect("read");
+    // JSON has no NaN: writers that emit one produce the bare token, which must be named as such
+    let damaged =
+        original.replacen("\"T_base_ee\": [\n        [\n          ", "\"T_base_ee\": [\n        [\n          NaN, ", 1);
+    assert_ne!(damaged, original, "the edit applies");
+    std::fs::write(&manifest, damaged).expect("write");
+    let out_dir = dir.path().join("out");
+    let out = fuse(&scan, &out_dir);
+    let message = text(&out);
+    assert!(!out.status.success(), "{message}");
+    assert!(message.contains("scan.json") && message.contains("NaN"), "{message}");
+    assert!(!out_dir.exists(), "nothing is written");
+    // a pose that is a number but not a rotation names the view and field
+    let mut m: serde_json::Value = serde_json::from_str(&original).expect("json");
+    m["views"][1]["T_base_ee"][0][0] = serde_json::json!(2.0);
+    std::fs::write(&manifest, serde_json::to_string(&m).expect("json")).expect("write");
+    let message = text(&fuse(&scan, &out_dir));
+    assert!(message.contains("views[1].T_base_ee") && message.contains("rigid"), "{message}");
+    assert!(!out_dir.exists(), "nothing is written");
+}
