@@ -1,33 +1,15 @@
-//! Issue 3's acceptance tests, IGNORED until the pipeline meets them (last run: box seed 1 RMSE 2.15 mm,
-//! completeness 95.2 %, off-object 22.9 % (fails), trajectory 26.3 -> 3.56 mm). Run with `--ignored`.
+//! Issue 3's acceptance tests on awl's own simulator.
 //!
 //! `fuse` on simulated scans, judged against the simulator's ground truth: model RMSE against the
 //! CAD, completeness, floor and clutter left, and registered poses against the seeds.
 
-use awl::PointCloud;
-use awl::eval::{MeshDistance, align_positions, cad_metrics, visible_samples};
+mod common;
+
 use awl::io::scan::read_scan;
-use awl::normals::{NormalParams, with_normals};
 use awl::pipeline::{FuseConfig, ViewStatus, fuse};
-use awl::registration::{IcpLevel, IcpParams, register};
-use awl::sim::{NoiseLevel, SceneKind, SimParams, Simulation, simulate, write_simulation};
-use nalgebra::{Isometry3, Point3};
-
-struct Outcome {
-    rmse_mm: f64,
-    completeness_5mm: f64,
-    off_object: f64,
-    seed_error_mm: f64,
-    registered_error_mm: f64,
-}
-
-/// Mean camera-centre error after the best rigid alignment of the trajectory onto the truth.
-fn trajectory_error(poses: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
-    let from: Vec<Point3<f64>> = poses.iter().map(|p| Point3::from(p.translation.vector)).collect();
-    let to: Vec<Point3<f64>> = truth.iter().map(|p| Point3::from(p.translation.vector)).collect();
-    let align = align_positions(&from, &to).expect("alignment");
-    from.iter().zip(&to).map(|(f, t)| (align * f - t).norm()).sum::<f64>() / from.len() as f64 * 1e3
-}
+use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
+use common::{Outcome, TruthScene, evaluate};
+use nalgebra::Isometry3;
 
 fn run(scene: SceneKind, seed: u64, perturb: Option<(usize, Isometry3<f64>)>) -> (Outcome, awl::pipeline::FuseReport) {
     let sim =
@@ -41,40 +23,14 @@ fn run(scene: SceneKind, seed: u64, perturb: Option<(usize, Isometry3<f64>)>) ->
         scan.views[view].pose = awl::io::scan::ViewPose::Camera { world_from_camera: seed_pose * delta };
     }
     let out = fuse(&scan, &FuseConfig::default(), &|_, _, _| {}).expect("fuse");
-    (evaluate(&sim, &scan, &out), out.report)
-}
-
-fn evaluate(sim: &Simulation, scan: &awl::io::scan::Scan, out: &awl::pipeline::FuseOutput) -> Outcome {
-    let cad = MeshDistance::new(&sim.cad).expect("cad");
-    let cad_cloud = with_normals(&sim.cad.sample_surface(200_000, 1).expect("sample"), &NormalParams::default(), None)
-        .expect("cad normals");
-    // model -> object frame: the true pose, then a fine alignment to the CAD (as the reference system did)
-    let object_from_world = sim.truth.world_from_object.inverse();
-    // the model lives in the scan's world frame, which inherits the anchor view's seed error (~1-2 cm,
-    // ~1 deg): coarse-to-fine alignment from the true pose, then a fine level
-    let mut fine = IcpParams::default();
-    fine.levels.push(IcpLevel { voxel_m: 0.002, max_correspondence_m: 0.01, max_iterations: 50 });
-    let aligned = register(&out.model, &cad_cloud, &object_from_world, &fine).expect("align");
-    let model_object = out.model.transformed(&aligned.target_from_source);
-    let samples = sim.cad.sample_surface(30_000, 2).expect("samples");
-    let samples_world = samples.transformed(&sim.truth.world_from_object);
-    let camera = scan.camera.expect("camera");
-    let views: Vec<_> = sim.truth.views.iter().zip(&sim.views).map(|(t, v)| (t.world_from_camera, &v.depth)).collect();
-    let visible = visible_samples(&samples_world, &camera.intrinsics, camera.depth_scale, &views, 0.01);
-    let keep: Vec<usize> = (0..samples.len()).filter(|&i| visible[i]).collect();
-    let visible_samples: PointCloud = samples.select(&keep);
-    let m = cad_metrics(&model_object, &cad, &visible_samples.points, 0.01, &[0.005]).expect("metrics");
-    let merged: Vec<usize> = (0..out.poses.len()).filter(|&i| out.poses[i].is_some()).collect();
-    let truth: Vec<Isometry3<f64>> = merged.iter().map(|&i| sim.truth.views[i].world_from_camera).collect();
-    let seeds: Vec<Isometry3<f64>> = merged.iter().map(|&i| scan.world_from_camera(i).expect("seed")).collect();
-    let registered: Vec<Isometry3<f64>> = merged.iter().filter_map(|&i| out.poses[i]).collect();
-    Outcome {
-        rmse_mm: m.rmse_m * 1e3,
-        completeness_5mm: m.completeness[0].1,
-        off_object: m.off_object_fraction,
-        seed_error_mm: trajectory_error(&seeds, &truth),
-        registered_error_mm: trajectory_error(&registered, &truth),
-    }
+    let truth = TruthScene {
+        cad: &sim.cad,
+        world_from_object: sim.truth.world_from_object,
+        camera: scan.camera.expect("camera"),
+        views: sim.truth.views.iter().zip(&sim.views).map(|(t, v)| (t.world_from_camera, &v.depth)).collect(),
+        seeds: (0..scan.views.len()).map(|i| scan.world_from_camera(i).expect("seed")).collect(),
+    };
+    (evaluate(&truth, &out), out.report)
 }
 
 fn check(scene: SceneKind) {
