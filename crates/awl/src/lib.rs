@@ -20,6 +20,7 @@ pub mod segment;
 pub mod sim;
 pub mod smooth;
 pub mod spatial;
+pub mod tag;
 pub mod transform;
 
 pub use cloud::PointCloud;

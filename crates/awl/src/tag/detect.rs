@@ -1,0 +1,222 @@
+//! tag36h11 detection: our result type, the [`TagDetector`] trait, and its implementation on the
+//! AprilTag 3 C library (`apriltag` crate, C sources vendored and compiled by `cc`).
+//!
+//! Conventions of every [`TagDetection`]:
+//! - pixels in the OpenCV convention: integer `(u, v)` are pixel centres, u right, v down (the C
+//!   library puts pixel centres at +0.5; the 0.5 is subtracted here, at the boundary);
+//! - corners in AprilTag order: the black-border corners bottom-left, bottom-right, top-right,
+//!   top-left as the tag is read upright, i.e. tag-frame `(-s/2, -s/2)`, `(s/2, -s/2)`, `(s/2, s/2)`,
+//!   `(-s/2, s/2)` in awl's tag frame (x right, y up, z out of the face; see [`crate::tag`]).
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::image::ColorImage;
+
+/// Offset the AprilTag C library adds to pixel coordinates (its pixel centres sit at +0.5).
+const C_PIXEL_CENTRE: f64 = 0.5;
+
+/// Images smaller than this (either side, pixels) cannot hold a decodable tag36h11 and are not searched.
+const MIN_SIDE_PX: u32 = 16;
+
+/// One detected tag.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TagDetection {
+    /// Tag id within the family (tag36h11: 0..=586).
+    pub id: u32,
+    /// Number of bits corrected to decode it (0 = exact code word).
+    pub hamming: u32,
+    /// AprilTag's decision margin: mean difference between the bit intensities and the threshold
+    /// (higher is more confident; clean detections are typically above 50).
+    pub decision_margin: f64,
+    /// Black-border corners in AprilTag order (bottom-left, bottom-right, top-right, top-left as
+    /// read upright), pixels, integer = pixel centre.
+    pub corners_px: [[f64; 2]; 4],
+    /// Image of the tag centre (intersection of the diagonals), pixels, integer = pixel centre.
+    pub centre_px: [f64; 2],
+}
+
+/// A borrowed 8-bit grayscale image, row-major, `width * height` bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GrayView<'a> {
+    width: u32,
+    height: u32,
+    data: &'a [u8],
+}
+
+impl<'a> GrayView<'a> {
+    /// Wraps `data` as a `width x height` image.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when a side is zero or `data` is not `width * height` bytes.
+    pub fn new(width: u32, height: u32, data: &'a [u8]) -> Result<Self> {
+        check_size("gray image", width, height, data.len())?;
+        Ok(Self { width, height, data })
+    }
+
+    /// Width, pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height, pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Row-major pixels.
+    pub fn data(&self) -> &'a [u8] {
+        self.data
+    }
+}
+
+fn check_size(what: &str, width: u32, height: u32, len: usize) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::invalid(what, format!("empty image ({width} x {height})")));
+    }
+    let expected = width as usize * height as usize;
+    if len != expected {
+        return Err(Error::invalid(what, format!("{width} x {height} image needs {expected} pixels, got {len}")));
+    }
+    Ok(())
+}
+
+/// A tag36h11 detector. Implementations differ in speed and build cost, not in the result's
+/// conventions (see the module docs); swap them behind this trait.
+pub trait TagDetector {
+    /// Every tag36h11 tag found in `image`; an image without tags gives an empty list. Sorted by id,
+    /// then by centre (u, v).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when the detector cannot run on this image.
+    fn detect_gray(&mut self, image: GrayView<'_>) -> Result<Vec<TagDetection>>;
+
+    /// [`TagDetector::detect_gray`] on the luma of an RGB image.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when the image's pixel count does not match its size.
+    fn detect_color(&mut self, image: &ColorImage) -> Result<Vec<TagDetection>> {
+        check_size("color image", image.width, image.height, image.data.len())?;
+        let gray = image.to_gray();
+        self.detect_gray(GrayView::new(image.width, image.height, &gray)?)
+    }
+}
+
+/// Settings of the AprilTag C detector. Defaults are the C library's own except `quad_decimate`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorParams {
+    /// Quads are searched on the image decimated by this factor (corners are then refined on the
+    /// full image when `refine_edges`). Default 1.0 (the C library's 2.0 misses 3 of the 16 small
+    /// tags in `shared/data/dt_apriltags`; 1.0 finds all of them).
+    pub quad_decimate: f32,
+    /// Gaussian blur (sigma, pixels) before the quad search; 0 = none. Default 0.0.
+    pub quad_sigma: f32,
+    /// Snap quad edges to the strong gradients of the full-resolution image. Default true.
+    pub refine_edges: bool,
+    /// Sharpening of the decoded bit samples. Default 0.25.
+    pub decode_sharpening: f64,
+    /// Most bit errors corrected when decoding (0..=3). Default 2.
+    pub max_hamming: u32,
+    /// Worker threads of the C detector. Default 1 (results do not depend on it).
+    pub threads: u8,
+}
+
+impl Default for DetectorParams {
+    fn default() -> Self {
+        Self {
+            quad_decimate: 1.0,
+            quad_sigma: 0.0,
+            refine_edges: true,
+            decode_sharpening: 0.25,
+            max_hamming: 2,
+            threads: 1,
+        }
+    }
+}
+
+/// tag36h11 detector on the AprilTag 3 C library (version 3.2, vendored by `apriltag-sys` 0.3).
+///
+/// Holds the C detector and its decode table (built once: keep one per thread and reuse it). Not
+/// `Send`: create it on the thread that uses it.
+pub struct AprilTagDetector {
+    detector: apriltag::Detector,
+}
+
+impl std::fmt::Debug for AprilTagDetector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("AprilTagDetector(tag36h11)")
+    }
+}
+
+impl AprilTagDetector {
+    /// A tag36h11 detector with `params`.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for out-of-range parameters or when the C detector cannot be created.
+    pub fn new(params: &DetectorParams) -> Result<Self> {
+        if !(params.quad_decimate >= 1.0 && params.quad_decimate <= 8.0) {
+            return Err(Error::invalid("quad_decimate", format!("must be 1 to 8, got {}", params.quad_decimate)));
+        }
+        if !(params.quad_sigma.is_finite() && params.quad_sigma.abs() <= 10.0) {
+            return Err(Error::invalid("quad_sigma", format!("must be within +-10, got {}", params.quad_sigma)));
+        }
+        if !(0.0..=2.0).contains(&params.decode_sharpening) {
+            return Err(Error::invalid(
+                "decode_sharpening",
+                format!("must be 0 to 2, got {}", params.decode_sharpening),
+            ));
+        }
+        if params.max_hamming > 3 {
+            return Err(Error::invalid("max_hamming", format!("must be 0 to 3, got {}", params.max_hamming)));
+        }
+        if params.threads == 0 {
+            return Err(Error::invalid("threads", "must be at least 1"));
+        }
+        let family = apriltag::Family::tag_36h11();
+        let mut detector = apriltag::Detector::builder()
+            .add_family_bits(family, params.max_hamming as usize)
+            .build()
+            .map_err(|e| Error::invalid("AprilTag detector", e.to_string()))?;
+        detector.set_decimation(params.quad_decimate);
+        detector.set_sigma(params.quad_sigma);
+        detector.set_refine_edges(params.refine_edges);
+        detector.set_shapening(params.decode_sharpening);
+        detector.set_thread_number(params.threads);
+        Ok(Self { detector })
+    }
+}
+
+impl TagDetector for AprilTagDetector {
+    fn detect_gray(&mut self, image: GrayView<'_>) -> Result<Vec<TagDetection>> {
+        if image.width < MIN_SIDE_PX || image.height < MIN_SIDE_PX {
+            return Ok(Vec::new());
+        }
+        let (w, h) = (image.width as usize, image.height as usize);
+        let mut buffer = apriltag::Image::zeros_with_alignment(w, h, apriltag::image_buf::DEFAULT_ALIGNMENT_U8)
+            .map_err(|e| Error::invalid("AprilTag image", e.to_string()))?;
+        let stride = buffer.stride();
+        let pixels = buffer.as_slice_mut();
+        for (row, src) in image.data.chunks_exact(w).enumerate() {
+            pixels[row * stride..row * stride + w].copy_from_slice(src);
+        }
+        let mut detections: Vec<TagDetection> = self
+            .detector
+            .detect(&buffer)
+            .iter()
+            .map(|d| TagDetection {
+                id: d.id() as u32,
+                hamming: d.hamming() as u32,
+                decision_margin: f64::from(d.decision_margin()),
+                corners_px: d.corners().map(|[u, v]| [u - C_PIXEL_CENTRE, v - C_PIXEL_CENTRE]),
+                centre_px: d.center().map(|x| x - C_PIXEL_CENTRE),
+            })
+            .collect();
+        detections.sort_by(|a, b| {
+            a.id.cmp(&b.id)
+                .then(a.centre_px[0].total_cmp(&b.centre_px[0]))
+                .then(a.centre_px[1].total_cmp(&b.centre_px[1]))
+        });
+        Ok(detections)
+    }
+}
