@@ -14,6 +14,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Calibrate the rig: `awl calibrate hand-eye` solves T_ee_camera from robot poses and target observations.
+    Calibrate(cmd::calibrate::CalibrateArgs),
     /// Summarise a scan folder or a point-cloud / mesh file: views, pose sources, point counts, bounds.
     Info(cmd::info::InfoArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
@@ -27,6 +29,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Calibrate(args) => cmd::calibrate::run(&args),
         Command::Info(args) => cmd::info::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),
         Command::Register(args) => cmd::register::run(&args),

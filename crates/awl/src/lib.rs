@@ -10,6 +10,7 @@ pub mod cluster;
 pub mod error;
 pub mod eval;
 pub mod filter;
+pub mod handeye;
 pub mod image;
 pub mod io;
 pub mod mesh;

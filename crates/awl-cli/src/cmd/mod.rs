@@ -1,5 +1,6 @@
 //! One module per subcommand.
 
+pub mod calibrate;
 pub mod common;
 pub mod fuse;
 pub mod info;

@@ -7,6 +7,7 @@
 //! ChaCha8 stream, so the output is bit-identical whatever the number of threads. Only
 //! [`write_simulation`] touches the filesystem.
 
+pub mod calibration;
 mod layout;
 mod noise;
 mod random;
