@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub mod common;
+pub mod evaluate;
 pub mod fuse;
 pub mod info;
 pub mod register;
