@@ -18,6 +18,8 @@ enum Command {
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// Summarise a scan folder or a point-cloud / mesh file: views, pose sources, point counts, bounds.
     Info(cmd::info::InfoArgs),
+    /// Align a model to its CAD and measure it: summary.json, errors.ply (heatmap), T_object_model.json.
+    Evaluate(cmd::evaluate::EvaluateArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
     Fuse(cmd::fuse::FuseArgs),
     /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
@@ -31,6 +33,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Calibrate(args) => cmd::calibrate::run(&args),
         Command::Info(args) => cmd::info::run(&args),
+        Command::Evaluate(args) => cmd::evaluate::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),

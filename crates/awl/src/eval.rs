@@ -6,6 +6,9 @@
 //! - `off_object_fraction`: model points farther than `on_object_m` from the CAD (floor, clutter, ghosts) / all;
 //! - `completeness`: fraction of the CAD surface samples (those some view could see) with a model
 //!   point within each threshold.
+//!
+//! The whole `awl evaluate` job (global + fine alignment of a model to a CAD, metrics, heatmap) lives
+//! in the submodules: [`evaluate()`] is the entry point.
 
 use nalgebra::{Isometry3, Point3};
 use parry3d_f64::math::Vector as PVector;
@@ -18,6 +21,15 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
 use crate::spatial::KdIndex;
+
+pub mod evaluate;
+pub mod global;
+pub mod heatmap;
+pub mod summary;
+
+pub use evaluate::{EvaluateParams, Evaluation, evaluate};
+pub use global::{GlobalParams, GlobalResult, global_align};
+pub use summary::EvaluationSummary;
 
 /// Distances from points to a triangle mesh's surface.
 pub struct MeshDistance {
