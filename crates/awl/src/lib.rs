@@ -17,6 +17,8 @@ pub mod mesh;
 pub mod normals;
 pub mod pipeline;
 pub mod registration;
+pub mod render;
+pub mod report_html;
 pub mod segment;
 pub mod sim;
 pub mod smooth;

@@ -1,11 +1,13 @@
 //! `awl fuse SCAN_DIR -o OUT_DIR`: the modeling pipeline.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use awl::PointCloud;
 use awl::io::mesh::write_cloud;
 use awl::io::scan::read_scan;
-use awl::pipeline::{FuseConfig, ViewStatus, fuse};
+use awl::pipeline::{FuseConfig, FuseReport, ViewStatus, fuse};
+use awl::report_html::{FusePageParams, fuse_page};
 
 use super::common::{set_threads, stage_bar, write_json};
 
@@ -14,7 +16,7 @@ use super::common::{set_threads, stage_bar, write_json};
 pub struct FuseArgs {
     /// The scan folder (awl-scan/1).
     pub scan: PathBuf,
-    /// Output folder: model.ply and report.json are written there.
+    /// Output folder: model.ply, report.json, report.html and renders/*.png are written there.
     #[arg(short, long)]
     pub output: PathBuf,
     /// A TOML file overriding parameters of the pipeline (see report.json's `config` for all keys).
@@ -37,6 +39,18 @@ fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
     toml::from_str(&text).with_context(|| format!("{}: invalid fuse config", path.display()))
 }
 
+/// Writes `report.html` (self-contained) and the renders it embeds as `renders/*.png`.
+fn write_html_report(out_dir: &Path, report: &FuseReport, model: &PointCloud) -> anyhow::Result<()> {
+    let page = fuse_page(report, model, None, &FusePageParams::default())?;
+    let renders = out_dir.join("renders");
+    std::fs::create_dir_all(&renders).with_context(|| format!("{}: cannot create", renders.display()))?;
+    for (name, png) in &page.renders {
+        awl::io::write_atomic(&renders.join(name), png)?;
+    }
+    awl::io::write_atomic(&out_dir.join("report.html"), page.page.to_html()?.as_bytes())?;
+    Ok(())
+}
+
 /// Runs `awl fuse`.
 pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
@@ -54,6 +68,7 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
     write_cloud(&args.output.join("model.ply"), &out.model)?;
     write_json(&args.output.join("report.json"), &out.report)?;
+    write_html_report(&args.output, &out.report, &out.model)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out.report)?);
     } else if !args.quiet {
