@@ -6,6 +6,9 @@
 //! - a simulated 4-view fused box, checked by `tests/py/check_evaluate.py` (Open3D) within 5 %;
 //! - bad input gives typed errors naming the file or field.
 
+mod common;
+use common::shared_data;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -22,12 +25,6 @@ use rayon::prelude::*;
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn shared_data() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA").map(PathBuf::from).unwrap_or_else(|| repo().join("../shared/data"));
-    assert!(dir.is_dir(), "{}: shared test data missing (set AWL_SHARED_DATA)", dir.display());
-    dir
 }
 
 fn reference_cad(name: &str) -> TriMesh {

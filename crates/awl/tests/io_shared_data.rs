@@ -3,6 +3,9 @@
 //! The folder is `$AWL_SHARED_DATA` when set, else `<workspace>/../shared/data`. These tests fail,
 //! not skip, when it is missing.
 
+mod common;
+use common::shared_data as data_dir;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -10,18 +13,6 @@ use awl::PointCloud;
 use awl::io::mesh::{read_cloud, read_mesh};
 use awl::io::pcd::{read_pcd, read_pcd_organised};
 use awl::io::ply::read_ply;
-
-fn data_dir() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    assert!(
-        dir.is_dir(),
-        "shared test data folder {} is missing: restore it (see shared/data/SOURCES.md) or set AWL_SHARED_DATA",
-        dir.display()
-    );
-    dir
-}
 
 fn file(rel: &str) -> PathBuf {
     let path = data_dir().join(rel);

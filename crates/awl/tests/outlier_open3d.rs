@@ -5,21 +5,16 @@
 //! (open3d-cpu 0.20.0). The shared data folder is `$AWL_SHARED_DATA` when set, else
 //! `<workspace>/../shared/data`; this test fails, not skips, when it is missing.
 
+mod common;
+use common::shared_data as data_dir;
+
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use awl::filter::outlier::{SorParams, statistical};
 use awl::io::mesh::read_cloud;
 
 const PCD: &str = "pcl/table_scene_mug_stereo_textured.pcd";
-
-fn data_dir() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    assert!(dir.is_dir(), "shared test data folder {} is missing: restore it or set AWL_SHARED_DATA", dir.display());
-    dir
-}
 
 #[test]
 fn statistical_matches_open3d_on_table_mug() {

@@ -3,7 +3,8 @@
 //! Seeds are the truth perturbed by 25 mm / 5 deg (rotation about the source centroid, shift in a
 //! random direction), 10 seeds per pair; every run must land within 1 mm and 0.5 deg.
 
-use std::path::PathBuf;
+mod common;
+use common::shared_data as data_dir;
 
 use awl::PointCloud;
 use awl::io::ply::read_ply;
@@ -12,14 +13,6 @@ use awl::registration::{IcpParams, register};
 use awl::spatial::KdIndex;
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
-
-fn data_dir() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    assert!(dir.is_dir(), "{}: shared test data missing (set AWL_SHARED_DATA)", dir.display());
-    dir.join("stanford_bunny")
-}
 
 /// `common_from_scan` for every `bmesh` line of bun.conf.
 fn conf_poses() -> Vec<(String, Isometry3<f64>)> {

@@ -5,8 +5,11 @@
 //!
 //! Run in release: `cargo test --release -p awl --test sim`.
 
+mod common;
+use common::shared_data;
+
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use awl::camera::DepthCamera;
@@ -399,14 +402,6 @@ fn writes_a_complete_scan_folder_atomically() {
     let names: Vec<_> =
         std::fs::read_dir(parent.path()).expect("list").map(|e| e.expect("entry").file_name()).collect();
     assert_eq!(names, vec![std::ffi::OsString::from("scan")], "no temporary folder left behind");
-}
-
-fn shared_data() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    assert!(dir.is_dir(), "shared test data folder {} is missing (set AWL_SHARED_DATA)", dir.display());
-    dir
 }
 
 #[test]

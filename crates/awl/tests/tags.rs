@@ -6,6 +6,7 @@
 //! The pupil-apriltags comparison runs `tests/py/check_tags.py` with `$AWL_PYTHON`; it is skipped
 //! with a message only when `AWL_PYTHON` is unset. Run in release: `cargo test --release -p awl --test tags`.
 
+mod common;
 mod tags_common;
 
 use std::process::Command;

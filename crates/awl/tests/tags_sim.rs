@@ -6,6 +6,7 @@
 //!
 //! Run in release: `cargo test --release -p awl --test tags_sim -- --nocapture` to see the numbers.
 
+mod common;
 mod tags_common;
 
 use std::time::Instant;

@@ -1,23 +1,11 @@
 //! Helpers shared by the tag tests.
 #![allow(dead_code)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
+pub use crate::common::shared_data as data_dir;
 use awl::io::image::read_color_png;
 use awl::tag::{AprilTagDetector, DetectorParams, TagDetection, TagDetector};
-
-/// `$AWL_SHARED_DATA`, else `<workspace>/../shared/data`; panics when missing.
-pub fn data_dir() -> PathBuf {
-    let dir = std::env::var_os("AWL_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    assert!(
-        dir.is_dir(),
-        "shared test data folder {} is missing: restore it (see shared/data/SOURCES.md) or set AWL_SHARED_DATA",
-        dir.display()
-    );
-    dir
-}
 
 /// A detector with the default parameters.
 pub fn detector() -> AprilTagDetector {
