@@ -18,7 +18,9 @@ enum Command {
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// Summarise a scan folder or a point-cloud / mesh file: views, pose sources, point counts, bounds.
     Info(cmd::info::InfoArgs),
-    /// Align a model to its CAD and measure it: summary.json, errors.ply (heatmap), T_object_model.json.
+    /// Run the whole job on a simulated scan: simulate, fuse, evaluate; prints the headline and the reports' paths.
+    Demo(cmd::demo::DemoArgs),
+    /// Align a model to its CAD and measure it: summary.json, errors.ply (heatmap), T_object_model.json, report.html.
     Evaluate(cmd::evaluate::EvaluateArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
     Fuse(cmd::fuse::FuseArgs),
@@ -32,6 +34,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Calibrate(args) => cmd::calibrate::run(&args),
+        Command::Demo(args) => cmd::demo::run(&args),
         Command::Info(args) => cmd::info::run(&args),
         Command::Evaluate(args) => cmd::evaluate::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),

@@ -1,7 +1,8 @@
 //! report.html in a real browser: `awl fuse` on a small simulated scan writes report.html and
-//! renders/*.png; headless Chromium loads the page (and an evaluation-style page with a per-point
-//! error heatmap built through the library) and must show no JavaScript error, the point count and
-//! RMSE in their elements, and a 3D view that is not blank.
+//! renders/*.png, then `awl evaluate` (model vs the scan's CAD, from truth.json) writes its
+//! report.html and heatmap renders; headless Chromium loads both pages and must show no JavaScript
+//! error, the point count and (evaluate) the RMSE of summary.json in their elements, and a 3D view
+//! that is not blank.
 //!
 //! Chromium: `AWL_CHROMIUM` (scripts/test sets it), else `chromium` on PATH; the test is skipped
 //! only when neither exists.
@@ -10,14 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use awl::PointCloud;
-use awl::eval::MeshDistance;
-use awl::io::mesh::{read_cloud, read_mesh};
-use awl::io::truth::read_truth;
 use awl::pipeline::FuseReport;
-use awl::render::plot::{Chart, histogram};
-use awl::render::{Colormap, RenderParams, ScalarScale, Viewpoint, png_bytes, render_scalar};
-use awl::report_html::{Block, KeyValue, Page, Picture, Section, ViewerCloud};
 
 /// The viewer's clear color, 8-bit (0.118, 0.133, 0.157).
 const CLEAR: [u8; 3] = [30, 34, 40];
@@ -87,7 +81,7 @@ fn assert_canvas_not_blank(bin: &Path, page: &Path) -> (usize, f64) {
     let shot = tempfile::Builder::new().suffix(".png").tempfile().expect("png file");
     let args = [
         format!("--screenshot={}", shot.path().display()),
-        "--window-size=1280,1300".into(),
+        "--window-size=1280,1800".into(),
         "--hide-scrollbars".into(),
     ];
     run_chromium(bin, page, &args);
@@ -144,47 +138,8 @@ fn assert_render_not_blank(path: &Path) {
     assert!(covered > 48_000, "{}: only {covered} of 480000 pixels show the model", path.display());
 }
 
-/// An `awl evaluate`-style page: per-point distance to the CAD (model in the world frame, CAD
-/// placed by the truth pose), heatmap render, histogram, RMSE and the scalar 3D view.
-fn evaluation_page(scan: &Path, model: &PointCloud) -> (Page, f64) {
-    let truth = read_truth(scan).expect("truth");
-    let cad = MeshDistance::new(&read_mesh(&scan.join(&truth.cad)).expect("cad")).expect("bvh");
-    let object_from_world = truth.world_from_object.inverse();
-    let points: Vec<_> = model.points.iter().map(|p| object_from_world * p.cast::<f64>()).collect();
-    let d = cad.distances(&points);
-    let rmse = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
-    let values: Vec<f32> = d.iter().map(|&v| v as f32).collect();
-    let scale = ScalarScale { colormap: Colormap::Turbo, lo_m: 0.0, hi_m: 0.005 };
-    let (heat, _) = render_scalar(model, &values, &scale, Viewpoint::Iso, &RenderParams::default()).expect("heatmap");
-    let edges: Vec<f64> = (0..=20).map(|k| k as f64 * 0.25).collect();
-    let mut counts = vec![0u64; 20];
-    for v in &d {
-        counts[((v * 1e3 / 0.25) as usize).min(19)] += 1;
-    }
-    let hist = histogram(&Chart::new("distance to CAD", "mm", "points"), &edges, &counts, "#3366cc").expect("hist");
-    let summary = vec![
-        KeyValue::with_id("model points", model.len().to_string(), "points"),
-        KeyValue::with_id("RMSE (mm)", format!("{:.3}", rmse * 1e3), "rmse"),
-    ];
-    let page = Page {
-        title: "evaluation".into(),
-        sections: vec![
-            Section { heading: "Summary".into(), blocks: vec![Block::KeyValues(summary)] },
-            Section {
-                heading: "Error".into(),
-                blocks: vec![
-                    Block::Cloud(ViewerCloud::from_scalar(model, &values, &scale, 200_000).expect("viewer")),
-                    Block::Pictures(vec![Picture { caption: "iso".into(), png: png_bytes(&heat).expect("png") }]),
-                    Block::Svg(hist),
-                ],
-            },
-        ],
-    };
-    (page, rmse)
-}
-
 #[test]
-fn fuse_report_and_an_evaluation_page_work_in_headless_chromium() {
+fn fuse_and_evaluate_reports_work_in_headless_chromium() {
     let Some(bin) = chromium() else {
         eprintln!("SKIPPED: no chromium (set AWL_CHROMIUM or install Debian's chromium)");
         return;
@@ -211,14 +166,24 @@ fn fuse_report_and_an_evaluation_page_work_in_headless_chromium() {
     assert_eq!(element_text(&dom, "viewer-status-0"), format!("ok {shown} points"));
     assert_canvas_not_blank(&bin, &page);
 
-    let model = read_cloud(&out.join("model.ply")).expect("model");
-    assert_eq!(model.len(), report.model_points);
-    let (eval, rmse) = evaluation_page(&scan, &model);
-    let eval_path = dir.path().join("evaluation.html");
-    std::fs::write(&eval_path, eval.to_html().expect("html")).expect("write");
-    let dom = load_without_errors(&bin, &eval_path);
-    assert_eq!(element_text(&dom, "rmse"), format!("{:.3}", rmse * 1e3));
-    assert!(rmse > 0.0 && rmse < 0.02, "RMSE {rmse} m");
-    assert_eq!(element_text(&dom, "points"), model.len().to_string());
-    assert_canvas_not_blank(&bin, &eval_path);
+    let eval_dir = dir.path().join("eval");
+    let model = out.join("model.ply");
+    let (cad, truth) = (scan.join("cad.ply"), scan.join("truth.json"));
+    let arg = |p: &Path| p.to_str().expect("utf-8").to_string();
+    awl(&["evaluate", &arg(&model), "--cad", &arg(&cad), "--truth", &arg(&truth), "-o", &arg(&eval_dir)]);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval_dir.join("summary.json")).expect("summary")).expect("json");
+    let rmse_m = summary["distances"]["on_object"]["rmse_m"].as_f64().expect("rmse_m");
+    assert!(rmse_m > 0.0 && rmse_m < 0.005, "RMSE {rmse_m} m");
+    let renders: Vec<String> = ["front", "side", "top", "iso"].iter().map(|v| format!("heatmap-{v}.png")).collect();
+    for name in &renders {
+        assert_render_not_blank(&eval_dir.join("renders").join(name));
+    }
+    let eval_page = eval_dir.join("report.html");
+    println!("evaluate report.html: {} bytes", std::fs::metadata(&eval_page).expect("report.html").len());
+    let dom = load_without_errors(&bin, &eval_page);
+    assert_eq!(element_text(&dom, "rmse"), format!("{:.3}", rmse_m * 1e3));
+    assert_eq!(element_text(&dom, "points"), report.model_points.to_string());
+    assert_eq!(element_text(&dom, "viewer-status-0"), format!("ok {shown} points"));
+    assert_canvas_not_blank(&bin, &eval_page);
 }

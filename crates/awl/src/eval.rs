@@ -26,10 +26,12 @@ pub mod evaluate;
 pub mod global;
 pub mod heatmap;
 pub mod summary;
+pub mod trajectory;
 
 pub use evaluate::{EvaluateParams, Evaluation, evaluate};
 pub use global::{GlobalParams, GlobalResult, global_align};
 pub use summary::EvaluationSummary;
+pub use trajectory::{TrajectoryCorrection, trajectory_correction, trajectory_error_mm};
 
 /// Distances from points to a triangle mesh's surface.
 pub struct MeshDistance {

@@ -1,12 +1,14 @@
 //! `awl evaluate MODEL --cad CAD -o OUT_DIR`: align a model to its CAD and measure it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use awl::eval::{EvaluateParams, evaluate};
+use awl::eval::{EvaluateParams, Evaluation, evaluate};
 use awl::io::evaluation::{read_transform, write_evaluation};
 use awl::io::mesh::{read_cloud, read_mesh};
+use awl::io::report::write_report;
 use awl::io::truth::read_truth;
+use awl::report_html::{EvaluatePageParams, evaluate_page};
 
 use super::common::set_threads;
 
@@ -24,7 +26,7 @@ pub struct EvaluateArgs {
     /// A truth.json: start from inverse(T_world_object) (the model is in the world frame).
     #[arg(long)]
     pub truth: Option<PathBuf>,
-    /// Output folder: summary.json, errors.ply, T_object_model.json.
+    /// Output folder: summary.json, errors.ply, T_object_model.json, report.html (+ renders/*.png).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Print summary.json on stdout instead of the one-line headline.
@@ -33,6 +35,25 @@ pub struct EvaluateArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+}
+
+/// `MODEL vs CAD` with the files' names, for the page's title.
+pub fn subject(model: &Path, cad: &Path) -> String {
+    let name = |p: &Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into_owned());
+    format!("{} vs {}", name(model), name(cad))
+}
+
+/// Writes `summary.json`, `errors.ply`, `T_object_model.json`, `report.html` and its
+/// `renders/*.png` into `out_dir` (refusing to replace any of `inputs`); returns the page's path.
+pub fn write_outputs(
+    out_dir: &Path,
+    evaluation: &Evaluation,
+    inputs: &[&Path],
+    subject: &str,
+) -> anyhow::Result<PathBuf> {
+    write_evaluation(out_dir, evaluation, inputs)?;
+    let page = evaluate_page(evaluation, subject, &EvaluatePageParams::default())?;
+    Ok(write_report(out_dir, &page.page, &page.renders)?)
 }
 
 /// Runs `awl evaluate`.
@@ -52,7 +73,7 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     let mut inputs = vec![args.model.as_path(), args.cad.as_path()];
     inputs.extend(args.init.as_deref());
     inputs.extend(args.truth.as_deref());
-    write_evaluation(&args.output, &evaluation, &inputs)?;
+    write_outputs(&args.output, &evaluation, &inputs, &subject(&args.model, &args.cad))?;
     let s = &evaluation.summary;
     if args.json {
         println!("{}", serde_json::to_string_pretty(s)?);

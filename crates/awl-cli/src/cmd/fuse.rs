@@ -3,10 +3,10 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use awl::PointCloud;
 use awl::io::mesh::write_cloud;
+use awl::io::report::write_report;
 use awl::io::scan::read_scan;
-use awl::pipeline::{FuseConfig, FuseReport, ViewStatus, fuse};
+use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::report_html::{FusePageParams, fuse_page};
 
 use super::common::{set_threads, stage_bar, write_json};
@@ -39,16 +39,15 @@ fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
     toml::from_str(&text).with_context(|| format!("{}: invalid fuse config", path.display()))
 }
 
-/// Writes `report.html` (self-contained) and the renders it embeds as `renders/*.png`.
-fn write_html_report(out_dir: &Path, report: &FuseReport, model: &PointCloud) -> anyhow::Result<()> {
-    let page = fuse_page(report, model, None, &FusePageParams::default())?;
-    let renders = out_dir.join("renders");
-    std::fs::create_dir_all(&renders).with_context(|| format!("{}: cannot create", renders.display()))?;
-    for (name, png) in &page.renders {
-        awl::io::write_atomic(&renders.join(name), png)?;
-    }
-    awl::io::write_atomic(&out_dir.join("report.html"), page.page.to_html()?.as_bytes())?;
-    Ok(())
+/// Writes `model.ply`, `report.json` and `report.html` (self-contained; its renders also as
+/// `renders/*.png`) into `out_dir`, creating it; `rmse_m` (an RMSE against ground truth, when the
+/// caller has one) goes on the page. Returns the page's path.
+pub fn write_outputs(out_dir: &Path, out: &FuseOutput, rmse_m: Option<f64>) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
+    write_cloud(&out_dir.join("model.ply"), &out.model)?;
+    write_json(&out_dir.join("report.json"), &out.report)?;
+    let page = fuse_page(&out.report, &out.model, rmse_m, &FusePageParams::default())?;
+    Ok(write_report(out_dir, &page.page, &page.renders)?)
 }
 
 /// Runs `awl fuse`.
@@ -65,10 +64,7 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     let out = fuse(&scan, &config, &progress)?;
     bar.finish_and_clear();
     // the folder is made only once there is something to put in it
-    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create", args.output.display()))?;
-    write_cloud(&args.output.join("model.ply"), &out.model)?;
-    write_json(&args.output.join("report.json"), &out.report)?;
-    write_html_report(&args.output, &out.report, &out.model)?;
+    write_outputs(&args.output, &out, None)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out.report)?);
     } else if !args.quiet {

@@ -2,6 +2,7 @@
 
 pub mod calibrate;
 pub mod common;
+pub mod demo;
 pub mod evaluate;
 pub mod fuse;
 pub mod info;

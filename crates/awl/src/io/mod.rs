@@ -11,6 +11,7 @@ pub mod pcd;
 mod pcd_header;
 pub mod ply;
 mod ply_header;
+pub mod report;
 pub mod scan;
 pub mod truth;
 

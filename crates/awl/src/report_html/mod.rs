@@ -1,14 +1,18 @@
 //! Self-contained HTML reports: a generic [`Page`] (tables, PNG renders as data URIs, inline SVG
-//! plots, an interactive WebGL point view) and the page of `awl fuse`. The HTML needs no network.
+//! plots, an interactive WebGL point view) and the pages of `awl fuse` and `awl evaluate`. The HTML needs no network.
 
 pub mod base64;
+pub mod evaluate;
 pub mod fuse;
 pub mod page;
 pub mod viewer;
 
 #[cfg(test)]
+mod evaluate_tests;
+#[cfg(test)]
 mod fuse_tests;
 
+pub use evaluate::{EvaluatePage, EvaluatePageParams, evaluate_page};
 pub use fuse::{FusePage, FusePageParams, fuse_page};
 pub use page::{Block, KeyValue, Page, Picture, Section, Table};
 pub use viewer::{DEFAULT_MAX_POINTS, ViewerCloud};
