@@ -19,13 +19,13 @@ pub fn shared_data() -> PathBuf {
 
 use awl::PointCloud;
 use awl::camera::DepthCamera;
-use awl::eval::{MeshDistance, align_positions, cad_metrics, visible_samples};
+use awl::eval::{MeshDistance, cad_metrics, trajectory_error_mm, visible_samples};
 use awl::image::DepthImage;
 use awl::mesh::TriMesh;
 use awl::normals::{NormalParams, with_normals};
 use awl::pipeline::FuseOutput;
 use awl::registration::{IcpLevel, IcpParams, register};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 
 /// A fused model judged against the truth.
 pub struct Outcome {
@@ -57,10 +57,7 @@ pub struct TruthScene<'a> {
 
 /// Mean camera-centre error after the best rigid alignment of the trajectory onto the truth, mm.
 pub fn trajectory_error(poses: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
-    let from: Vec<Point3<f64>> = poses.iter().map(|p| Point3::from(p.translation.vector)).collect();
-    let to: Vec<Point3<f64>> = truth.iter().map(|p| Point3::from(p.translation.vector)).collect();
-    let align = align_positions(&from, &to).expect("alignment");
-    from.iter().zip(&to).map(|(f, t)| (align * f - t).norm()).sum::<f64>() / from.len() as f64 * 1e3
+    trajectory_error_mm(poses, truth).expect("trajectory alignment")
 }
 
 /// Model against CAD (after aligning the model from the true pose, coarse to fine: the model frame
