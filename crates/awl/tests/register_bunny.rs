@@ -4,7 +4,6 @@
 //! random direction), 10 seeds per pair; every run must land within 1 mm and 0.5 deg.
 
 mod common;
-use common::shared_data as data_dir;
 
 use awl::PointCloud;
 use awl::io::ply::read_ply;
@@ -13,6 +12,10 @@ use awl::registration::{IcpParams, register};
 use awl::spatial::KdIndex;
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
+
+fn data_dir() -> std::path::PathBuf {
+    common::shared_data().join("stanford_bunny")
+}
 
 /// `common_from_scan` for every `bmesh` line of bun.conf.
 fn conf_poses() -> Vec<(String, Isometry3<f64>)> {
