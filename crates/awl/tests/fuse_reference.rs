@@ -11,7 +11,7 @@ use awl::io::mesh::read_mesh;
 use awl::io::scan::{ViewData, read_scan};
 use awl::io::truth::read_truth;
 use awl::pipeline::{FuseConfig, fuse};
-use common::{TruthScene, evaluate, shared_data};
+use common::{TruthScene, assert_acceptance, evaluate, shared_data};
 
 fn check(name: &str) {
     let dir = shared_data().join("sim_reference").join(name);
@@ -34,23 +34,7 @@ fn check(name: &str) {
         views: truth.views.iter().zip(&depths).map(|(t, d)| (t.world_from_camera, d)).collect(),
         seeds: (0..scan.views.len()).map(|i| scan.world_from_camera(i).expect("seed")).collect(),
     };
-    let o = evaluate(&scene, &out);
-    let summary = format!(
-        "{name}: RMSE {:.2} mm, completeness@5mm {:.1} %, off-object {:.2} %, trajectory {:.1} -> {:.2} mm, {} of {} views merged; warnings {:?}",
-        o.rmse_mm,
-        o.completeness_5mm * 100.0,
-        o.off_object * 100.0,
-        o.seed_error_mm,
-        o.registered_error_mm,
-        out.poses.iter().filter(|p| p.is_some()).count(),
-        out.poses.len(),
-        out.report.warnings
-    );
-    println!("{summary}");
-    assert!(o.rmse_mm <= 2.0, "{summary}");
-    assert!(o.completeness_5mm >= 0.95, "{summary}");
-    assert!(o.off_object < 0.005, "{summary}");
-    assert!(o.registered_error_mm * 5.0 <= o.seed_error_mm, "{summary}");
+    assert_acceptance(name, &evaluate(&scene, &out), &out.report);
 }
 
 #[test]

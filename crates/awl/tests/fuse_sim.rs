@@ -8,7 +8,7 @@ mod common;
 use awl::io::scan::read_scan;
 use awl::pipeline::{FuseConfig, ViewStatus, fuse};
 use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
-use common::{Outcome, TruthScene, evaluate};
+use common::{Outcome, TruthScene, assert_acceptance, evaluate};
 use nalgebra::Isometry3;
 
 fn run(scene: SceneKind, seed: u64, perturb: Option<(usize, Isometry3<f64>)>) -> (Outcome, awl::pipeline::FuseReport) {
@@ -36,20 +36,7 @@ fn run(scene: SceneKind, seed: u64, perturb: Option<(usize, Isometry3<f64>)>) ->
 fn check(scene: SceneKind) {
     for seed in 1..=3 {
         let (o, report) = run(scene, seed, None);
-        let summary = format!(
-            "{scene:?} seed {seed}: RMSE {:.2} mm, completeness@5mm {:.1} %, off-object {:.2} %, trajectory error seeds {:.1} mm -> registered {:.2} mm; warnings {:?}",
-            o.rmse_mm,
-            o.completeness_5mm * 100.0,
-            o.off_object * 100.0,
-            o.seed_error_mm,
-            o.registered_error_mm,
-            report.warnings
-        );
-        println!("{summary}");
-        assert!(o.rmse_mm <= 2.0, "{summary}");
-        assert!(o.completeness_5mm >= 0.95, "{summary}");
-        assert!(o.off_object < 0.005, "{summary}");
-        assert!(o.registered_error_mm * 5.0 <= o.seed_error_mm, "{summary}");
+        assert_acceptance(&format!("{scene:?} seed {seed}"), &o, &report);
     }
 }
 

@@ -91,3 +91,24 @@ pub fn evaluate(scene: &TruthScene<'_>, out: &FuseOutput) -> Outcome {
         registered_error_mm: trajectory_error(&registered, &truth),
     }
 }
+
+/// Issue 3's acceptance thresholds on a fused scan: RMSE <= 2 mm, completeness@5mm >= 95 %, off-object
+/// < 0.5 %, registered poses at least 5x closer to the truth than the seeds. Prints the numbers.
+pub fn assert_acceptance(label: &str, o: &Outcome, report: &awl::pipeline::FuseReport) {
+    let merged = report.views.iter().filter(|v| v.pose.is_some()).count();
+    let summary = format!(
+        "{label}: RMSE {:.2} mm, completeness@5mm {:.1} %, off-object {:.2} %, trajectory {:.1} -> {:.2} mm, {merged} of {} views merged; warnings {:?}",
+        o.rmse_mm,
+        o.completeness_5mm * 100.0,
+        o.off_object * 100.0,
+        o.seed_error_mm,
+        o.registered_error_mm,
+        report.views.len(),
+        report.warnings
+    );
+    println!("{summary}");
+    assert!(o.rmse_mm <= 2.0, "{summary}");
+    assert!(o.completeness_5mm >= 0.95, "{summary}");
+    assert!(o.off_object < 0.005, "{summary}");
+    assert!(o.registered_error_mm * 5.0 <= o.seed_error_mm, "{summary}");
+}
