@@ -8,7 +8,7 @@ use awl::io::evaluation::{read_transform, write_evaluation};
 use awl::io::mesh::{read_cloud, read_mesh};
 use awl::io::report::write_report;
 use awl::io::truth::read_truth;
-use awl::report_html::{EvaluatePageParams, evaluate_page};
+use awl::report_html::{PageParams, evaluate_page};
 
 use super::common::set_threads;
 
@@ -52,7 +52,7 @@ pub fn write_outputs(
     subject: &str,
 ) -> anyhow::Result<PathBuf> {
     write_evaluation(out_dir, evaluation, inputs)?;
-    let page = evaluate_page(evaluation, subject, &EvaluatePageParams::default())?;
+    let page = evaluate_page(evaluation, subject, &PageParams::default())?;
     Ok(write_report(out_dir, &page.page, &page.renders)?)
 }
 

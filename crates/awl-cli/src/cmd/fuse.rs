@@ -7,7 +7,7 @@ use awl::io::mesh::write_cloud;
 use awl::io::report::write_report;
 use awl::io::scan::read_scan;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
-use awl::report_html::{FusePageParams, fuse_page};
+use awl::report_html::{PageParams, fuse_page};
 
 use super::common::{set_threads, stage_bar, write_json};
 
@@ -46,7 +46,7 @@ pub fn write_outputs(out_dir: &Path, out: &FuseOutput, rmse_m: Option<f64>) -> a
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
     write_cloud(&out_dir.join("model.ply"), &out.model)?;
     write_json(&out_dir.join("report.json"), &out.report)?;
-    let page = fuse_page(&out.report, &out.model, rmse_m, &FusePageParams::default())?;
+    let page = fuse_page(&out.report, &out.model, rmse_m, &PageParams::default())?;
     Ok(write_report(out_dir, &page.page, &page.renders)?)
 }
 

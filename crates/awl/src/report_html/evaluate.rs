@@ -5,44 +5,16 @@
 //! Renders and the 3D view show the model in its own frame (a fused model: the world, z up), turned
 //! so that the summary's `up_model` points up, since the standard viewpoints assume z up.
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-use serde::{Deserialize, Serialize};
-
 use super::page::{Block, KeyValue, Page, Picture, Section, Table};
-use super::viewer::{DEFAULT_MAX_POINTS, ViewerCloud};
+use super::rendered::{PageParams, RenderedPage};
+use super::viewer::ViewerCloud;
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::eval::Evaluation;
 use crate::eval::summary::{AlignmentSummary, EvaluationSummary};
 use crate::render::plot::{Chart, histogram};
-use crate::render::{Colormap, RenderParams, ScalarScale, Viewpoint, estimate_spacing, png_bytes, render_scalar};
-
-/// What goes into the evaluate page.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct EvaluatePageParams {
-    /// Size and look of the heatmap renders, legend included (default 800 x 600).
-    pub render: RenderParams,
-    /// Viewpoints rendered (default front, side, top, iso).
-    pub views: Vec<Viewpoint>,
-    /// Most points embedded in the interactive view (default 200 000).
-    pub max_viewer_points: usize,
-}
-
-impl Default for EvaluatePageParams {
-    fn default() -> Self {
-        Self { render: RenderParams::default(), views: Viewpoint::ALL.to_vec(), max_viewer_points: DEFAULT_MAX_POINTS }
-    }
-}
-
-/// The page and the heatmap renders in it (file name such as `heatmap-front.png`, PNG bytes).
-#[derive(Debug, Clone, PartialEq)]
-pub struct EvaluatePage {
-    /// The page.
-    pub page: Page,
-    /// The renders embedded in the page.
-    pub renders: Vec<(String, Vec<u8>)>,
-}
+use crate::render::{Colormap, ScalarScale, estimate_spacing, png_bytes, render_scalar};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// Millimetres with 3 decimals, or `-` when not finite.
 fn mm(m: f64) -> String {
@@ -185,7 +157,7 @@ fn histogram_svg(s: &EvaluationSummary) -> Result<String> {
 /// # Errors
 /// [`Error::Invalid`] for bad render parameters, an evaluation whose distances do not match its
 /// points, or an empty histogram.
-pub fn evaluate_page(evaluation: &Evaluation, subject: &str, params: &EvaluatePageParams) -> Result<EvaluatePage> {
+pub fn evaluate_page(evaluation: &Evaluation, subject: &str, params: &PageParams) -> Result<RenderedPage> {
     let s = &evaluation.summary;
     if evaluation.distances_m.len() != evaluation.model_object.len() {
         return Err(Error::invalid(
@@ -237,5 +209,5 @@ pub fn evaluate_page(evaluation: &Evaluation, subject: &str, params: &EvaluatePa
         heading: "Distance histogram".into(),
         blocks: vec![Block::Svg(histogram_svg(s)?), Block::Text(overflow)],
     });
-    Ok(EvaluatePage { page: Page { title: format!("awl evaluate report: {subject}"), sections }, renders })
+    Ok(RenderedPage { page: Page { title: format!("awl evaluate report: {subject}"), sections }, renders })
 }

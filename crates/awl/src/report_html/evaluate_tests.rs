@@ -4,6 +4,7 @@
 use nalgebra::{Isometry3, Point3};
 
 use super::evaluate::*;
+use super::rendered::PageParams;
 use crate::cloud::PointCloud;
 use crate::eval::{EvaluateParams, Evaluation, evaluate};
 use crate::mesh::TriMesh;
@@ -58,9 +59,9 @@ fn evaluate_page_has_ids_heatmaps_histogram_and_the_viewer() {
     let on = e.summary.distances.on_object.as_ref().expect("on object");
     // Every point is 2.5 mm out (f32 coordinates of a 30 cm cube: within 1e-6 m).
     assert!((on.rmse_m - 0.0025).abs() < 1e-6 && (on.max_m - 0.0025).abs() < 1e-6, "{on:?}");
-    let params = EvaluatePageParams {
+    let params = PageParams {
         render: RenderParams { width: 320, height: 240, ..RenderParams::default() },
-        ..EvaluatePageParams::default()
+        ..PageParams::default()
     };
     let out = evaluate_page(&e, "offset <cube>", &params).expect("page");
     let names: Vec<&str> = out.renders.iter().map(|(n, _)| n.as_str()).collect();

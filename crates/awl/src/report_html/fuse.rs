@@ -1,42 +1,14 @@
 //! The page of `awl fuse`: summary, renders of the model, the interactive view, per-view
 //! registration (correction plots and table) and ICP convergence per level.
 
-use serde::{Deserialize, Serialize};
-
 use super::page::{Block, KeyValue, Page, Picture, Section, Table};
-use super::viewer::{DEFAULT_MAX_POINTS, ViewerCloud};
+use super::rendered::{PageParams, RenderedPage};
+use super::viewer::ViewerCloud;
 use crate::cloud::PointCloud;
 use crate::error::Result;
 use crate::pipeline::{FuseReport, ViewReport, ViewStatus};
 use crate::render::plot::{Bar, Chart, Series, bar_chart, line_chart};
-use crate::render::{RenderParams, Viewpoint, estimate_spacing, png_bytes, render_cloud};
-
-/// What goes into the fuse page.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct FusePageParams {
-    /// Size and look of the renders (default 800 x 600).
-    pub render: RenderParams,
-    /// Viewpoints rendered (default front, side, top, iso).
-    pub views: Vec<Viewpoint>,
-    /// Most points embedded in the interactive view (default 200 000).
-    pub max_viewer_points: usize,
-}
-
-impl Default for FusePageParams {
-    fn default() -> Self {
-        Self { render: RenderParams::default(), views: Viewpoint::ALL.to_vec(), max_viewer_points: DEFAULT_MAX_POINTS }
-    }
-}
-
-/// The page and the renders in it (file name such as `front.png`, PNG bytes) for writing beside it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FusePage {
-    /// The page.
-    pub page: Page,
-    /// The renders embedded in the page.
-    pub renders: Vec<(String, Vec<u8>)>,
-}
+use crate::render::{estimate_spacing, png_bytes, render_cloud};
 
 fn status_name(s: ViewStatus) -> &'static str {
     match s {
@@ -184,8 +156,8 @@ pub fn fuse_page(
     report: &FuseReport,
     model: &PointCloud,
     rmse_m: Option<f64>,
-    params: &FusePageParams,
-) -> Result<FusePage> {
+    params: &PageParams,
+) -> Result<RenderedPage> {
     let mut sections =
         vec![Section { heading: "Summary".into(), blocks: vec![Block::KeyValues(summary(report, rmse_m))] }];
     if !report.warnings.is_empty() {
@@ -237,5 +209,5 @@ pub fn fuse_page(
     };
     sections.push(Section { heading: "Stages".into(), blocks: vec![Block::Table(stages)] });
     let page = Page { title: format!("awl fuse report: {}", report.scan), sections };
-    Ok(FusePage { page, renders })
+    Ok(RenderedPage { page, renders })
 }

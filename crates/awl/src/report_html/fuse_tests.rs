@@ -1,6 +1,7 @@
 //! The fuse page on a synthetic report: ids, renders, plots, rejected rows, the viewer.
 
 use super::fuse::*;
+use super::rendered::PageParams;
 use crate::cloud::PointCloud;
 use crate::pipeline::{FuseConfig, StageReport};
 use crate::pipeline::{FuseReport, ViewReport, ViewStatus};
@@ -59,9 +60,9 @@ fn report() -> FuseReport {
 fn fuse_page_has_ids_renders_plots_and_the_viewer() {
     let points = (0..400).map(|k| Point3::new((k % 20) as f32 * 0.01, 0.0, (k / 20) as f32 * 0.01)).collect();
     let model = PointCloud::from_points(points);
-    let params = FusePageParams {
+    let params = PageParams {
         render: RenderParams { width: 200, height: 150, ..RenderParams::default() },
-        ..FusePageParams::default()
+        ..PageParams::default()
     };
     let out = fuse_page(&report(), &model, Some(0.000_812), &params).expect("page");
     let names: Vec<&str> = out.renders.iter().map(|(n, _)| n.as_str()).collect();

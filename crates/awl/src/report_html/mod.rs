@@ -5,6 +5,7 @@ pub mod base64;
 pub mod evaluate;
 pub mod fuse;
 pub mod page;
+pub mod rendered;
 pub mod viewer;
 
 #[cfg(test)]
@@ -12,7 +13,8 @@ mod evaluate_tests;
 #[cfg(test)]
 mod fuse_tests;
 
-pub use evaluate::{EvaluatePage, EvaluatePageParams, evaluate_page};
-pub use fuse::{FusePage, FusePageParams, fuse_page};
+pub use evaluate::evaluate_page;
+pub use fuse::fuse_page;
 pub use page::{Block, KeyValue, Page, Picture, Section, Table};
+pub use rendered::{PageParams, RenderedPage};
 pub use viewer::{DEFAULT_MAX_POINTS, ViewerCloud};
