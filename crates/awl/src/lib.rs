@@ -25,6 +25,7 @@ pub mod smooth;
 pub mod spatial;
 pub mod tag;
 pub mod transform;
+pub mod workpiece;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};

@@ -135,7 +135,10 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
-    let fuse_html = super::fuse::write_outputs(&fuse_dir, &fused, Some(rmse_m))?;
+    let (fuse_html, workpiece_warnings) = super::fuse::write_outputs(&fuse_dir, &scan, &fused, Some(rmse_m))?;
+    for w in &workpiece_warnings {
+        say(format!("      warning: {w}"));
+    }
     let model_path = fuse_dir.join("model.ply");
     let inputs = [model_path.as_path(), cad_path.as_path(), truth_path.as_path()];
     let eval_html = super::evaluate::write_outputs(

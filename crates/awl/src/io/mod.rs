@@ -14,6 +14,7 @@ mod ply_header;
 pub mod report;
 pub mod scan;
 pub mod truth;
+pub mod workpiece;
 
 use std::fs;
 use std::io::Write;
