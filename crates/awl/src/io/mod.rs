@@ -9,6 +9,7 @@ pub mod image;
 pub mod mesh;
 pub mod pcd;
 mod pcd_header;
+pub mod plan;
 pub mod ply;
 mod ply_header;
 pub mod report;

@@ -7,8 +7,12 @@
 //! 3. The face: the plane's inliers (within `distance_m`, model normal within `max_normal_rad` when
 //!    the model has normals) connected to the point through steps of at most `link_m`; a
 //!    least-squares refit on them.
-//! 4. In the plane: the 2D convex hull of the face, its minimum-area enclosing rectangle (rotating
-//!    calipers over the hull edges), the 4 corners, their centre.
+//! 4. In the plane: the 2D convex hull of the face and its minimum-area enclosing rectangle
+//!    (rotating calipers over the hull edges) give the rectangle's axes. Its sides are then placed
+//!    where the face's point density along each axis falls to half its interior level
+//!    ([`half_density_extent`]): the hull itself reaches the few stray points fusion leaves past a
+//!    box's edges (measured up to 8 mm on a simulated box), which moved the centre by 1.3 mm.
+//!    The 4 corners, their centre.
 
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
@@ -38,6 +42,9 @@ pub struct FaceParams {
     pub link_m: f64,
     /// Fewest points of a face. Default 100.
     pub min_points: usize,
+    /// Histogram bin of the face's edge search ([`half_density_extent`]), metres. Default 0.002
+    /// (the model's point spacing).
+    pub edge_bin_m: f64,
 }
 
 impl Default for FaceParams {
@@ -51,6 +58,7 @@ impl Default for FaceParams {
             max_normal_rad: 30f64.to_radians(),
             link_m: 0.01,
             min_points: 100,
+            edge_bin_m: 0.002,
         }
     }
 }
@@ -83,6 +91,53 @@ pub fn convex_hull(points: &[Point2<f64>]) -> Vec<Point2<f64>> {
     hull
 }
 
+/// Where a face ends along one axis: `proj` are its points' coordinates on that axis. A histogram of
+/// `bin_m` bins; the interior level is the median count of the bins in the middle half (between the
+/// 5th and 95th percentiles); each end is the outermost bin at or above half that level, moved out by
+/// the covered fraction of the bin beyond it (count / interior level). `None` with fewer than 8 bins
+/// or an empty interior.
+pub fn half_density_extent(proj: &[f64], bin_m: f64) -> Option<(f64, f64)> {
+    let mut x: Vec<f64> = proj.iter().copied().filter(|v| v.is_finite()).collect();
+    if x.len() < 16 || !(bin_m > 0.0) {
+        return None;
+    }
+    x.sort_by(f64::total_cmp);
+    let (lo, hi) = (x[0], x[x.len() - 1]);
+    let bins = ((hi - lo) / bin_m).ceil() as usize + 1;
+    if bins < 8 {
+        return None;
+    }
+    let mut counts = vec![0usize; bins];
+    for v in &x {
+        counts[(((v - lo) / bin_m) as usize).min(bins - 1)] += 1;
+    }
+    let q = |f: f64| x[((x.len() - 1) as f64 * f) as usize];
+    let (a, b) = (q(0.05), q(0.95));
+    let (m0, m1) = (a + (b - a) * 0.25, a + (b - a) * 0.75);
+    let mut interior: Vec<usize> = (0..bins)
+        .filter(|&i| {
+            let c = lo + (i as f64 + 0.5) * bin_m;
+            c >= m0 && c <= m1
+        })
+        .map(|i| counts[i])
+        .collect();
+    if interior.is_empty() {
+        return None;
+    }
+    interior.sort_unstable();
+    let level = interior[interior.len() / 2] as f64;
+    if level <= 0.0 {
+        return None;
+    }
+    let full = |i: usize| counts[i] as f64 >= level / 2.0;
+    let first = (0..bins).find(|&i| full(i))?;
+    let last = (0..bins).rev().find(|&i| full(i))?;
+    let frac = |i: Option<usize>| i.map_or(0.0, |i| (counts[i] as f64 / level).min(1.0));
+    let left = lo + first as f64 * bin_m - bin_m * frac(first.checked_sub(1));
+    let right = lo + (last + 1) as f64 * bin_m + bin_m * frac((last + 1 < bins).then_some(last + 1));
+    Some((left, right))
+}
+
 /// The minimum-area rectangle enclosing a convex hull: its 4 corners (counter-clockwise).
 pub fn min_area_rectangle(hull: &[Point2<f64>]) -> Option<[Point2<f64>; 4]> {
     if hull.len() < 3 {
@@ -108,6 +163,18 @@ pub fn min_area_rectangle(hull: &[Point2<f64>]) -> Option<[Point2<f64>; 4]> {
         }
     }
     best.map(|(_, c)| c)
+}
+
+/// The rectangle with `hull_rect`'s axes whose sides are the half-density edges of `flat`; `None`
+/// when an axis has too few bins (then the hull's rectangle is used).
+fn density_rectangle(flat: &[Point2<f64>], hull_rect: &[Point2<f64>; 4], bin_m: f64) -> Option<[Point2<f64>; 4]> {
+    let u = (hull_rect[1] - hull_rect[0]).try_normalize(1e-12)?;
+    let v = Vector2::new(-u.y, u.x);
+    let along = |d: &Vector2<f64>| flat.iter().map(|p| p.coords.dot(d)).collect::<Vec<f64>>();
+    let (lu, hu) = half_density_extent(&along(&u), bin_m)?;
+    let (lv, hv) = half_density_extent(&along(&v), bin_m)?;
+    let corner = |a: f64, b: f64| Point2::from(u * a + v * b);
+    Some([corner(lu, lv), corner(hu, lv), corner(hu, hv), corner(lu, hv)])
 }
 
 impl SurfaceModel<'_> {
@@ -162,7 +229,9 @@ impl SurfaceModel<'_> {
         let v = refit.cross(&u);
         let flat: Vec<Point2<f64>> =
             face_pts.iter().map(|x| Point2::new((x.coords - c).dot(&u), (x.coords - c).dot(&v))).collect();
-        let rect = min_area_rectangle(&convex_hull(&flat)).ok_or_else(|| Error::invalid(what(), "degenerate face"))?;
+        let hull_rect =
+            min_area_rectangle(&convex_hull(&flat)).ok_or_else(|| Error::invalid(what(), "degenerate face"))?;
+        let rect = density_rectangle(&flat, &hull_rect, fp.edge_bin_m).unwrap_or(hull_rect);
         let lift = |q: &Point2<f64>| Point3::from(c + u * q.x + v * q.y);
         let corners = rect.map(|q| lift(&q));
         let centre = Point3::from(corners.iter().map(|x| x.coords).sum::<Vector3<f64>>() / 4.0);
@@ -224,6 +293,22 @@ impl SurfaceModel<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn half_density_edges_ignore_stray_points_and_find_the_ends() {
+        // a 2 mm grid of cell centres over [0, 0.4] x [0, 0.2], plus stray points 8 mm past one end
+        let mut x = Vec::new();
+        for i in 0..200 {
+            for _ in 0..100 {
+                x.push((i as f64 + 0.5) * 0.002);
+            }
+        }
+        x.extend([-0.008, -0.0075, -0.006, 0.407]);
+        let (l, r) = half_density_extent(&x, 0.002).expect("extent");
+        assert!(l.abs() < 1.5e-3 && (r - 0.4).abs() < 1.5e-3, "{l} {r}");
+        assert!(((l + r) / 2.0 - 0.2).abs() < 5e-4, "centre {}", (l + r) / 2.0);
+        assert!(half_density_extent(&[0.0, 0.001, 0.002], 0.002).is_none());
+    }
 
     #[test]
     fn min_area_rectangle_of_a_rotated_rectangle_is_itself() {
