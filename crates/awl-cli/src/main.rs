@@ -24,8 +24,12 @@ enum Command {
     Evaluate(cmd::evaluate::EvaluateArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
     Fuse(cmd::fuse::FuseArgs),
+    /// Find the workpiece by its tag in a piercing-time shot; plan approach/pierce/retract tool poses (plan.json, URScript).
+    Pierce(cmd::pierce::PierceArgs),
     /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
     Register(cmd::register::RegisterArgs),
+    /// The reference paper's piercing trials in simulation (calibrate, scan + fuse, shots, pierce) as its Tables I-IV.
+    Trial(cmd::trial::TrialArgs),
     /// Simulate the rig: render a scan folder (depth, color, poses with noise) plus truth.json and cad.ply.
     Simulate(cmd::simulate::SimulateArgs),
 }
@@ -38,8 +42,10 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => cmd::info::run(&args),
         Command::Evaluate(args) => cmd::evaluate::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),
+        Command::Pierce(args) => cmd::pierce::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),
+        Command::Trial(args) => cmd::trial::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

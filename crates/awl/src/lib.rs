@@ -15,6 +15,7 @@ pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod normals;
+pub mod pierce;
 pub mod pipeline;
 pub mod registration;
 pub mod render;
@@ -25,6 +26,8 @@ pub mod smooth;
 pub mod spatial;
 pub mod tag;
 pub mod transform;
+pub mod trial;
+pub mod workpiece;
 
 pub use cloud::PointCloud;
 pub use error::{Error, Result};

@@ -1,19 +1,41 @@
-//! `fuse` on the scans of a simulator that is not ours (shared/data/sim_reference: its own noise model,
-//! stereo shadows, depth-scale error, SLAM error shared per base stop, clutter 4-8 cm from the
-//! workpiece), judged against its truth like our own scans (issue 3's thresholds). For scale, the
-//! reference system's method rebuilt with Open3D gives 22.3 mm RMSE / 62 % / 24 % off-object on the
-//! box and 3.9 mm / 96 % / 29 % on the shell (sim_reference/README.md).
+//! The scans and piercing shots of a simulator that is not ours (shared/data/sim_reference: its own
+//! noise model, stereo shadows, depth-scale error, SLAM error shared per base stop, clutter 4-8 cm
+//! from the workpiece), each scan fused once per test binary and judged against its truth:
+//! - issue 3's fuse thresholds. For scale, the reference system's method rebuilt with Open3D gives
+//!   22.3 mm RMSE / 62 % / 24 % off-object on the box and 3.9 mm / 96 % / 29 % on the shell;
+//! - issue 5: the tag on the model (`T_object_tag` via the model's alignment onto the CAD), face
+//!   centres and snapped points against the CAD, and `pierce::plan` from the tilted shots against
+//!   the shots' truth targets (robot base frame).
+//!
+//! Run: `cargo test --release -p awl --test fuse_reference -- --nocapture` (prints every measurement).
 
 mod common;
 
+use std::sync::OnceLock;
+
 use awl::io::image::read_depth_png;
 use awl::io::mesh::read_mesh;
-use awl::io::scan::{ViewData, read_scan};
-use awl::io::truth::read_truth;
-use awl::pipeline::{FuseConfig, fuse};
-use common::{TruthScene, assert_acceptance, evaluate, shared_data};
+use awl::io::scan::{Scan, ViewData, read_scan};
+use awl::io::truth::{Truth, read_truth};
+use awl::io::workpiece::{read_workpiece, write_workpiece};
+use awl::mesh::TriMesh;
+use awl::pierce::{LocateParams, PierceParams, plan};
+use awl::pipeline::{FuseConfig, FuseOutput, fuse};
+use awl::workpiece::{SurfaceModel, TargetParams, TargetSpec, WorkpieceParams, workpiece_from_fuse};
+use common::{Outcome, TruthScene, assert_acceptance, evaluate, shared_data};
+use nalgebra::{Isometry3, Vector3};
 
-fn check(name: &str) {
+/// A reference scan, fused and judged.
+struct Fused {
+    name: &'static str,
+    scan: Scan,
+    truth: Truth,
+    cad: TriMesh,
+    out: FuseOutput,
+    outcome: Outcome,
+}
+
+fn fused(name: &'static str) -> Fused {
     let dir = shared_data().join("sim_reference").join(name);
     let scan = read_scan(&dir).expect("scan");
     let truth = read_truth(&dir).expect("truth");
@@ -34,15 +56,230 @@ fn check(name: &str) {
         views: truth.views.iter().zip(&depths).map(|(t, d)| (t.world_from_camera, d)).collect(),
         seeds: (0..scan.views.len()).map(|i| scan.world_from_camera(i).expect("seed")).collect(),
     };
-    assert_acceptance(name, &evaluate(&scene, &out), &out.report);
+    let outcome = evaluate(&scene, &out);
+    Fused { name, scan, truth, cad, out, outcome }
+}
+
+static BOX: OnceLock<Fused> = OnceLock::new();
+static SHELL: OnceLock<Fused> = OnceLock::new();
+
+fn reference_box() -> &'static Fused {
+    BOX.get_or_init(|| fused("box_seed1"))
+}
+
+fn reference_shell() -> &'static Fused {
+    SHELL.get_or_init(|| fused("shell_seed1"))
 }
 
 #[test]
-fn reference_box() {
-    check("box_seed1");
+fn box_fuse_acceptance() {
+    let f = reference_box();
+    assert_acceptance(f.name, &f.outcome, &f.out.report);
 }
 
 #[test]
-fn reference_shell() {
-    check("shell_seed1");
+fn shell_fuse_acceptance() {
+    let f = reference_shell();
+    assert_acceptance(f.name, &f.outcome, &f.out.report);
+}
+
+/// (origin distance mm, z-axis angle deg, full rotation angle deg).
+fn tag_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64, f64) {
+    let centre_mm = (estimate.translation.vector - truth.translation.vector).norm() * 1e3;
+    let z_deg = (estimate.rotation * Vector3::z()).angle(&(truth.rotation * Vector3::z())).to_degrees();
+    (centre_mm, z_deg, estimate.rotation.angle_to(&truth.rotation).to_degrees())
+}
+
+/// `workpiece_from_fuse`: the tag vs the truth in the object frame; workpiece.json round trip.
+fn check_fused_tag(f: &Fused, max_mm: f64, max_deg: f64) {
+    let wp = workpiece_from_fuse(&f.scan, &f.out.poses, &f.out.model, "model.ply", &WorkpieceParams::default())
+        .expect("workpiece")
+        .expect("the scan declares a tag");
+    let world_from_tag = wp.world_from_tag.unwrap_or_else(|| panic!("{}: {:?}", f.name, wp.warnings));
+    let truth = f.truth.world_from_object.inverse() * f.truth.world_from_tag.expect("T_world_tag");
+    let (c, z, r) = tag_error(&(f.outcome.object_from_model * world_from_tag), &truth);
+    let refinement = wp.refinement.as_ref().expect("refinement");
+    let used = wp.detections.iter().filter(|d| d.used).count();
+    println!(
+        "{} (fused): T_object_tag error {c:.2} mm, z {z:.3} deg, rot {r:.3} deg; {used} of {} detections used, \
+         refinement on {} points (rms {:.2} mm, tilt {:.3} deg, shift {:.2} mm); warnings {:?}",
+        f.name,
+        wp.detections.len(),
+        refinement.points,
+        refinement.rms_m * 1e3,
+        refinement.tilt_rad.to_degrees(),
+        refinement.shift_m * 1e3,
+        wp.warnings
+    );
+    assert!(refinement.applied && used >= 2, "{}", f.name);
+    assert!(c <= max_mm && r <= max_deg, "{}: {c:.2} mm {r:.3} deg", f.name);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("workpiece.json");
+    write_workpiece(&path, &wp).expect("write");
+    let back = read_workpiece(&path).expect("read");
+    assert_eq!(back.views_checked, wp.views_checked);
+    assert_eq!(back.detections.len(), wp.detections.len());
+    let (dt, dr) = awl::transform::pose_difference(&back.world_from_tag.expect("T_world_tag"), &world_from_tag);
+    assert!(dt < 1e-12 && dr < 1e-9, "round trip {dt} {dr}");
+}
+
+/// The face centre of the truth target `name`, picked 5 cm off-centre and 4 mm above the face.
+fn check_face_centre(f: &Fused, name: &str, max_mm: f64, max_deg: f64) {
+    let object_from_model = f.outcome.object_from_model;
+    let target = f.truth.targets.iter().find(|t| t.name == name).expect("truth target");
+    let pick =
+        object_from_model.inverse() * (target.p_object + Vector3::new(0.04, -0.03, 0.0) + target.n_object * 0.004);
+    let surface = SurfaceModel::new(&f.out.model).expect("surface model");
+    let placed = surface.place(&TargetSpec::FaceCentre(pick), &TargetParams::default(), None).expect("face centre");
+    let p = object_from_model * placed.point;
+    let n = object_from_model.rotation * placed.normal;
+    let err_mm = (p - target.p_object).norm() * 1e3;
+    let err_deg = n.angle(&target.n_object).to_degrees();
+    let corners = placed.corners.expect("corners").map(|c| object_from_model * c);
+    let sides_mm = [(corners[1] - corners[0]).norm() * 1e3, (corners[2] - corners[1]).norm() * 1e3];
+    println!(
+        "{} face centre `{name}`: {err_mm:.2} mm ({:?} mm), normal {err_deg:.3} deg; face {} points, rms {:.2} mm, \
+         rectangle {:.1} x {:.1} mm",
+        f.name,
+        (p - target.p_object).map(|v| (v * 1e4).round() / 10.0),
+        placed.points,
+        placed.fit_rms_m * 1e3,
+        sides_mm[0],
+        sides_mm[1]
+    );
+    assert!((placed.axis + placed.normal).norm() < 1e-12);
+    assert!(err_mm <= max_mm && err_deg <= max_deg, "{}: {err_mm:.2} mm {err_deg:.3} deg", f.name);
+}
+
+#[test]
+fn box_tag_on_the_model_and_face_centres() {
+    let f = reference_box();
+    check_face_centre(f, "top-centre", 1.5, 1.0);
+    // the side face meets the floor: fusion removes the floor and the lowest few mm of the face with it
+    check_face_centre(f, "side-centre", 8.0, 1.0);
+    check_fused_tag(f, 2.0, 0.5);
+}
+
+/// (median, p95, max).
+fn stats(v: &mut [f64]) -> (f64, f64, f64) {
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.95), at(1.0))
+}
+
+#[test]
+fn shell_tag_on_the_model_and_snapped_points() {
+    let f = reference_shell();
+    let object_from_model = f.outcome.object_from_model;
+    let model_from_object = object_from_model.inverse();
+    let surface = SurfaceModel::new(&f.out.model).expect("surface model");
+    let cad = awl::eval::MeshDistance::new(&f.cad).expect("cad");
+    let samples = f.cad.sample_surface(4000, 7).expect("samples");
+    let normals = samples.normals.as_ref().expect("sample normals");
+    let index = awl::spatial::KdIndex::new(&f.out.model.points).expect("index");
+    let (mut dist_mm, mut angle_deg) = (Vec::new(), Vec::new());
+    for (p, n) in samples.points.iter().zip(normals) {
+        let (p, n) = (p.cast::<f64>(), n.cast::<f64>());
+        let p_model = model_from_object * p;
+        // a point the model covers (a model point within 2 mm)
+        let covered = index.nearest(&p_model.cast::<f32>()).is_some_and(|nb| nb.dist_sq < 4e-6);
+        if !covered || dist_mm.len() >= 300 {
+            continue;
+        }
+        let pick = p_model + model_from_object.rotation * n * 0.004;
+        let Ok(placed) = surface.snap(&pick, &TargetParams::default()) else { continue };
+        let q = object_from_model * placed.point;
+        dist_mm.push(cad.distances(&[q])[0] * 1e3);
+        angle_deg.push((object_from_model.rotation * placed.normal).angle(&n).to_degrees());
+    }
+    let (d, a) = (stats(&mut dist_mm), stats(&mut angle_deg));
+    println!(
+        "{}: {} snapped points: distance to CAD median {:.3} p95 {:.3} max {:.3} mm; normal vs CAD median {:.2} p95 {:.2} max {:.2} deg",
+        f.name,
+        dist_mm.len(),
+        d.0,
+        d.1,
+        d.2,
+        a.0,
+        a.1,
+        a.2
+    );
+    assert!(dist_mm.len() >= 200, "{} points", dist_mm.len());
+    // measured: median 0.52 mm / 1.68 deg, p95 1.32 mm / 6.6 deg (the model's own error vs the CAD,
+    // and groove walls and rims where the normal turns fast)
+    assert!(d.0 <= 1.0 && a.0 <= 2.0, "median {:.3} mm, {:.2} deg", d.0, a.0);
+    assert!(d.1 <= 1.5 && a.1 <= 8.0, "p95 {:.3} mm, {:.2} deg", d.1, a.1);
+    // measured 2.64 mm / 0.19 deg: the tag is printed on a curved side, its corners lie 1.4-1.9 mm behind
+    // the tag plane (see tests/tags_sim.rs), which biases the detected origin
+    check_fused_tag(f, 3.0, 1.0);
+}
+
+/// Plans the shot folder's truth targets from the fused scan (`T_ee_camera` from scan.json, as a
+/// user without a better calibration would, and the true one, which isolates awl's own error) and
+/// returns the largest distance and axis error of each, per target name.
+fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String, [f64; 4])> {
+    let shot_dir = shared_data().join("sim_reference").join(shot_folder);
+    let shot = read_scan(&shot_dir).expect("shot");
+    let shot_truth = read_truth(&shot_dir).expect("shot truth");
+    let wp = workpiece_from_fuse(&f.scan, &f.out.poses, &f.out.model, "model.ply", &WorkpieceParams::default())
+        .expect("workpiece")
+        .expect("tag");
+    let world_from_tag = wp.world_from_tag.expect("T_world_tag");
+    let model_from_object = f.outcome.object_from_model.inverse();
+    let specs: Vec<TargetSpec> = shot_truth
+        .targets
+        .iter()
+        .map(|t| {
+            let p = model_from_object * t.p_object;
+            if face_centres { TargetSpec::FaceCentre(p) } else { TargetSpec::Point(p) }
+        })
+        .collect();
+    let params = PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() };
+    let mut errors: Vec<(String, [f64; 4])> = shot_truth.targets.iter().map(|t| (t.name.clone(), [0.0; 4])).collect();
+    for (k, hand_eye) in [shot.ee_from_camera, shot_truth.ee_from_camera].into_iter().enumerate() {
+        let mut s = shot.clone();
+        s.ee_from_camera = hand_eye;
+        let planned = plan(&f.out.model, &wp.tag, &world_from_tag, &s, &specs, &params).expect("plan");
+        let r = planned.located.refinement.as_ref().expect("refinement");
+        for ((t, p), e) in shot_truth.targets.iter().zip(&planned.targets).zip(&mut errors) {
+            let d = (p.p_base - t.p_world.expect("p_world")).norm() * 1e3;
+            let tag_only =
+                (planned.located.base_from_model_tag * p.surface.point - t.p_world.expect("p_world")).norm() * 1e3;
+            let a = p.axis_base.angle(&-t.n_world.expect("n_world")).to_degrees();
+            println!(
+                "{shot_folder} `{}` with the {} hand-eye: {d:.2} mm (tag pose alone {tag_only:.2} mm), axis {a:.2} deg; \
+                 shot depth {} points, fitness {:.2}, moved the tag {:.2} mm / {:.3} deg",
+                t.name,
+                if k == 0 { "recorded" } else { "true" },
+                r.points,
+                r.fitness,
+                r.correction_m * 1e3,
+                r.correction_rad.to_degrees()
+            );
+            assert!(r.applied, "{}", r.note);
+            e.1[2 * k] = d;
+            e.1[2 * k + 1] = a;
+        }
+    }
+    errors
+}
+
+#[test]
+fn box_pierce_from_the_tilted_shot() {
+    let errors = pierce_shot(reference_box(), "box_seed1_shot_tilt30", true);
+    // [recorded hand-eye mm, deg, true hand-eye mm, deg]; the recorded hand-eye is about 3 mm / 0.3 deg off
+    let top = errors[0].1;
+    assert!(top[2] <= 2.5 && top[3] <= 1.0, "top-centre with the true hand-eye: {top:?}");
+    assert!(top[0] <= 4.0 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
+    let side = errors[1].1;
+    assert!(side[2] <= 9.0 && side[3] <= 1.0, "side-centre: {side:?}");
+}
+
+#[test]
+fn shell_pierce_from_the_tilted_shot() {
+    let errors = pierce_shot(reference_shell(), "shell_seed1_shot_tilt30", false);
+    for (name, e) in &errors {
+        assert!(e[2] <= 3.0 && e[3] <= 2.0, "{name} with the true hand-eye: {e:?}");
+        assert!(e[0] <= 5.0 && e[1] <= 2.0, "{name} with the recorded hand-eye: {e:?}");
+    }
 }

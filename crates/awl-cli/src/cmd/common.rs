@@ -47,3 +47,26 @@ pub fn refuse_overwriting_inputs(output: &Path, inputs: &[&Path]) -> anyhow::Res
     }
     Ok(())
 }
+
+/// Refuses a non-empty output `dir` without `force`; with it, removes the command's own `subfolders`
+/// there (other files are kept).
+pub fn prepare_output(dir: &Path, force: bool, subfolders: &[&str]) -> anyhow::Result<()> {
+    let non_empty = match std::fs::read_dir(dir) {
+        Ok(mut entries) => entries.next().is_some(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+        Err(e) => return Err(e).with_context(|| format!("{}: cannot read the output folder", dir.display())),
+    };
+    if non_empty && !force {
+        anyhow::bail!(
+            "{}: the output folder exists and is not empty (pass --force to replace its results)",
+            dir.display()
+        );
+    }
+    for sub in subfolders {
+        let path = dir.join(sub);
+        if path.exists() {
+            std::fs::remove_dir_all(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
+        }
+    }
+    Ok(())
+}

@@ -3,7 +3,7 @@
 //! true pose) into DIR/evaluate, and prints the headline: accuracy, completeness, timings, how much
 //! registration corrected the recorded poses, and where the two report.html pages are.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -14,7 +14,7 @@ use awl::io::truth::read_truth;
 use awl::pipeline::{FuseConfig, fuse};
 use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
 
-use super::common::{set_threads, stage_bar};
+use super::common::{prepare_output, set_threads, stage_bar};
 
 /// The simulated workpiece.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -51,33 +51,11 @@ pub struct DemoArgs {
     pub threads: Option<usize>,
 }
 
-/// Refuses a non-empty `dir` without `force`; with it, removes the demo's own subfolders.
-fn prepare_output(dir: &Path, force: bool) -> anyhow::Result<()> {
-    let non_empty = match std::fs::read_dir(dir) {
-        Ok(mut entries) => entries.next().is_some(),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
-        Err(e) => return Err(e).with_context(|| format!("{}: cannot read the output folder", dir.display())),
-    };
-    if non_empty && !force {
-        anyhow::bail!(
-            "{}: the output folder exists and is not empty (pass --force to replace the demo in it)",
-            dir.display()
-        );
-    }
-    for sub in ["fuse", "evaluate"] {
-        let path = dir.join(sub);
-        if path.exists() {
-            std::fs::remove_dir_all(&path).with_context(|| format!("{}: cannot remove", path.display()))?;
-        }
-    }
-    Ok(())
-}
-
 /// Runs `awl demo`.
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     set_threads(args.threads)?;
-    prepare_output(&args.output, args.force)?;
+    prepare_output(&args.output, args.force, &["fuse", "evaluate"])?;
     let say = |line: String| {
         if !args.quiet {
             println!("{line}");
@@ -135,7 +113,10 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
-    let fuse_html = super::fuse::write_outputs(&fuse_dir, &fused, Some(rmse_m))?;
+    let (fuse_html, workpiece_warnings) = super::fuse::write_outputs(&fuse_dir, &scan, &fused, Some(rmse_m))?;
+    for w in &workpiece_warnings {
+        say(format!("      warning: {w}"));
+    }
     let model_path = fuse_dir.join("model.ply");
     let inputs = [model_path.as_path(), cad_path.as_path(), truth_path.as_path()];
     let eval_html = super::evaluate::write_outputs(

@@ -5,9 +5,11 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::io::mesh::write_cloud;
 use awl::io::report::write_report;
-use awl::io::scan::read_scan;
+use awl::io::scan::{Scan, read_scan};
+use awl::io::workpiece::write_workpiece;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::report_html::{PageParams, fuse_page};
+use awl::workpiece::{WORKPIECE_FILE, WorkpieceParams, workpiece_from_fuse};
 
 use super::common::{set_threads, stage_bar, write_json};
 
@@ -39,15 +41,28 @@ fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
     toml::from_str(&text).with_context(|| format!("{}: invalid fuse config", path.display()))
 }
 
-/// Writes `model.ply`, `report.json` and `report.html` (self-contained; its renders also as
-/// `renders/*.png`) into `out_dir`, creating it; `rmse_m` (an RMSE against ground truth, when the
-/// caller has one) goes on the page. Returns the page's path.
-pub fn write_outputs(out_dir: &Path, out: &FuseOutput, rmse_m: Option<f64>) -> anyhow::Result<PathBuf> {
+/// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as
+/// `renders/*.png`) and, when the scan declares a tag, `workpiece.json` into `out_dir`, creating
+/// it; `rmse_m` (an RMSE against ground truth, when the caller has one) goes on the page.
+/// Returns the page's path and the workpiece's warnings.
+pub fn write_outputs(
+    out_dir: &Path,
+    scan: &Scan,
+    out: &FuseOutput,
+    rmse_m: Option<f64>,
+) -> anyhow::Result<(PathBuf, Vec<String>)> {
+    // the tag on the model, for `awl pierce`: estimated before anything is written
+    let workpiece = workpiece_from_fuse(scan, &out.poses, &out.model, "model.ply", &WorkpieceParams::default())?;
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
     write_cloud(&out_dir.join("model.ply"), &out.model)?;
     write_json(&out_dir.join("report.json"), &out.report)?;
+    let mut warnings = Vec::new();
+    if let Some(wp) = &workpiece {
+        write_workpiece(&out_dir.join(WORKPIECE_FILE), wp)?;
+        warnings.extend(wp.warnings.iter().map(|w| format!("workpiece: {w}")));
+    }
     let page = fuse_page(&out.report, &out.model, rmse_m, &PageParams::default())?;
-    Ok(write_report(out_dir, &page.page, &page.renders)?)
+    Ok((write_report(out_dir, &page.page, &page.renders)?, warnings))
 }
 
 /// Runs `awl fuse`.
@@ -64,7 +79,7 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     let out = fuse(&scan, &config, &progress)?;
     bar.finish_and_clear();
     // the folder is made only once there is something to put in it
-    write_outputs(&args.output, &out, None)?;
+    let (_, workpiece_warnings) = write_outputs(&args.output, &scan, &out, None)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out.report)?);
     } else if !args.quiet {
@@ -79,7 +94,7 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
             r.model_points,
             r.seconds
         );
-        for w in &r.warnings {
+        for w in r.warnings.iter().chain(&workpiece_warnings) {
             println!("warning: {w}");
         }
         println!("wrote {}", args.output.join("model.ply").display());

@@ -6,5 +6,7 @@ pub mod demo;
 pub mod evaluate;
 pub mod fuse;
 pub mod info;
+pub mod pierce;
 pub mod register;
 pub mod simulate;
+pub mod trial;

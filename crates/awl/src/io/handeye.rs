@@ -113,3 +113,20 @@ pub fn poses_json(poses: &[HandEyePose]) -> String {
 pub fn write_poses(path: &Path, poses: &[HandEyePose]) -> Result<()> {
     write_atomic(path, poses_json(poses).as_bytes())
 }
+
+/// Reads `T_ee_camera` from a JSON file holding that key at its top level (what
+/// `awl calibrate hand-eye -o` writes, or a hand-written `{"T_ee_camera": [[...4x4 rows...]]}`).
+///
+/// # Errors
+/// [`Error::Io`] when unreadable; [`Error::Format`] for invalid JSON; [`Error::Field`] naming
+/// `T_ee_camera` when missing or not a rigid transform.
+pub fn read_ee_from_camera(path: &Path) -> Result<nalgebra::Isometry3<f64>> {
+    #[derive(Deserialize)]
+    struct Raw {
+        #[serde(rename = "T_ee_camera")]
+        ee_camera: Option<Rows>,
+    }
+    let raw: Raw = parse_json(path, &read_bytes(path)?)?;
+    let rows = raw.ee_camera.ok_or_else(|| Error::field(path, "T_ee_camera", "missing"))?;
+    pose_field(path, "T_ee_camera", &rows)
+}

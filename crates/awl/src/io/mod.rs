@@ -9,11 +9,13 @@ pub mod image;
 pub mod mesh;
 pub mod pcd;
 mod pcd_header;
+pub mod plan;
 pub mod ply;
 mod ply_header;
 pub mod report;
 pub mod scan;
 pub mod truth;
+pub mod workpiece;
 
 use std::fs;
 use std::io::Write;

@@ -44,6 +44,9 @@ pub struct CalibrationSimParams {
     pub min_distance_m: f64,
     /// Farthest camera-to-tag distance, metres. Default 0.6.
     pub max_distance_m: f64,
+    /// The true `T_ee_camera`; `None` (default): drawn per seed (module docs). Give
+    /// [`crate::sim::rig_ee_from_camera`] to calibrate the camera of the simulated scans and shots.
+    pub ee_from_camera: Option<Isometry3<f64>>,
 }
 
 impl Default for CalibrationSimParams {
@@ -58,6 +61,7 @@ impl Default for CalibrationSimParams {
             spread_deg: 40.0,
             min_distance_m: 0.3,
             max_distance_m: 0.6,
+            ee_from_camera: None,
         }
     }
 }
@@ -145,7 +149,8 @@ fn camera_pose(rng: &mut ChaCha8Rng, p: &CalibrationSimParams, base_from_target:
 pub fn simulate_calibration(p: &CalibrationSimParams) -> Result<CalibrationCapture> {
     validate(p)?;
     let mut geo = rng(p.seed, Stream::HandEye, 1, 0);
-    let ee_from_camera = true_hand_eye(&mut geo);
+    let drawn = true_hand_eye(&mut geo);
+    let ee_from_camera = p.ee_from_camera.unwrap_or(drawn);
     let n = Vector3::new(-30f64.to_radians().sin(), 0.0, 30f64.to_radians().cos());
     let in_plane = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), uniform(&mut geo, -0.3, 0.3));
     let base_from_target =

@@ -198,6 +198,12 @@ impl Simulation {
     }
 }
 
+/// The true `T_ee_camera` of the simulated rig (every scan and shot; their scan.json carries it
+/// with a per-seed calibration error).
+pub fn rig_ee_from_camera() -> nalgebra::Isometry3<f64> {
+    rig::true_ee_from_camera()
+}
+
 /// The seed's RealSense-D435-like camera: 640x480, focal about 615 px and principal point about the
 /// image centre (each within 3 px, as a real calibration would give), no distortion, 1 mm depth
 /// units, 0.2-3 m range.

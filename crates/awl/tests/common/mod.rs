@@ -39,6 +39,8 @@ pub struct Outcome {
     pub seed_error_mm: f64,
     /// Trajectory error of the registered poses, mm.
     pub registered_error_mm: f64,
+    /// `T_object_model`: the model's alignment onto the CAD (fine ICP from the true pose).
+    pub object_from_model: Isometry3<f64>,
 }
 
 /// What the truth says about a scan.
@@ -89,6 +91,7 @@ pub fn evaluate(scene: &TruthScene<'_>, out: &FuseOutput) -> Outcome {
         off_object: m.off_object_fraction,
         seed_error_mm: trajectory_error(&seeds, &truth),
         registered_error_mm: trajectory_error(&registered, &truth),
+        object_from_model: aligned.target_from_source,
     }
 }
 

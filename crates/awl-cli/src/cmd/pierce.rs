@@ -1,0 +1,171 @@
+//! `awl pierce WORKPIECE.json --shot SHOT_DIR --target ... -o plan.json`: find the workpiece by its
+//! tag in a piercing-time shot and plan approach / pierce / retract tool poses in the robot base frame.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use awl::io::handeye::read_ee_from_camera;
+use awl::io::mesh::read_cloud;
+use awl::io::plan::{PlanSources, plan_json, write_plan};
+use awl::io::scan::read_scan;
+use awl::io::workpiece::{read_targets, read_workpiece};
+use awl::pierce::{AxisChoice, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, urscript};
+use awl::workpiece::TargetSpec;
+
+use super::common::refuse_overwriting_inputs;
+
+/// The piercing direction on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum AxisArg {
+    /// The model's surface normal at the target (right for curved surfaces).
+    Normal,
+    /// The tag's z axis (the reference system's choice).
+    Tag,
+}
+
+/// Arguments of `awl pierce`.
+#[derive(clap::Args)]
+pub struct PierceArgs {
+    /// workpiece.json written by `awl fuse` (the model file is read from beside it).
+    pub workpiece: PathBuf,
+    /// The piercing-time shot: an awl-scan/1 folder with world = robot base, color views that see the tag.
+    #[arg(long)]
+    pub shot: PathBuf,
+    /// A target, model frame, metres: `x,y,z` (snapped onto the surface) or `face-centre@x,y,z`
+    /// (the centre of the planar face nearest the point). Repeat for several; negative numbers are fine.
+    #[arg(long = "target", allow_hyphen_values = true)]
+    pub targets: Vec<String>,
+    /// A file of targets: one per line (# comments), or JSON (an array of target strings or {"targets": [...]}).
+    #[arg(long)]
+    pub targets_file: Option<PathBuf>,
+    /// Output plan (JSON): T_base_model, and per target p_base, axis_base and the tool poses.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Also write a URScript program (movel approach -> pierce -> retract per target).
+    #[arg(long)]
+    pub urscript: Option<PathBuf>,
+    /// Piercing direction.
+    #[arg(long, value_enum, default_value = "normal")]
+    pub axis: AxisArg,
+    /// Approach stand-off before the surface, metres.
+    #[arg(long, default_value_t = 0.10)]
+    pub approach_m: f64,
+    /// Piercing depth past the surface, metres.
+    #[arg(long, default_value_t = 0.01)]
+    pub depth_m: f64,
+    /// Retract stand-off before the surface, metres (default: the approach stand-off).
+    #[arg(long)]
+    pub retract_m: Option<f64>,
+    /// T_ee_camera from this JSON file (e.g. `awl calibrate hand-eye -o`) instead of the shot's scan.json.
+    #[arg(long)]
+    pub hand_eye: Option<PathBuf>,
+    /// Use the tag pose only: do not refine it by registering the shot's depth to the model.
+    #[arg(long)]
+    pub no_refine: bool,
+    /// No summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print the plan as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
+    let mut specs: Vec<TargetSpec> =
+        args.targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
+    if let Some(path) = &args.targets_file {
+        specs.extend(read_targets(path)?);
+    }
+    anyhow::ensure!(!specs.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
+    Ok(specs)
+}
+
+/// Runs `awl pierce`.
+pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
+    let specs = targets(args)?;
+    for out in std::iter::once(&args.output).chain(&args.urscript) {
+        let mut inputs: Vec<&Path> = vec![args.workpiece.as_path()];
+        inputs.extend(args.targets_file.as_deref());
+        inputs.extend(args.hand_eye.as_deref());
+        refuse_overwriting_inputs(out, &inputs)?;
+        anyhow::ensure!(!out.starts_with(&args.shot), "{}: refusing to write into the shot folder", out.display());
+    }
+    let workpiece = read_workpiece(&args.workpiece)?;
+    let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
+    let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
+    let model =
+        read_cloud(&model_path).with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
+    let mut shot = read_scan(&args.shot)?;
+    let hand_eye_source = match &args.hand_eye {
+        Some(path) => {
+            shot.ee_from_camera = Some(read_ee_from_camera(path)?);
+            path.display().to_string()
+        }
+        None => "scan.json".to_string(),
+    };
+    let params = PierceParams {
+        axis: match args.axis {
+            AxisArg::Normal => AxisChoice::Normal,
+            AxisArg::Tag => AxisChoice::Tag,
+        },
+        stroke: Stroke {
+            approach_m: args.approach_m,
+            depth_m: args.depth_m,
+            retract_m: args.retract_m.unwrap_or(args.approach_m),
+        },
+        locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
+        ..PierceParams::default()
+    };
+    let plan = plan(&model, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
+    let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
+    // everything is computed before the first file is written
+    let script = args
+        .urscript
+        .as_ref()
+        .map(|_| urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string()));
+    write_plan(&args.output, &plan, &sources)?;
+    if let (Some(path), Some(text)) = (&args.urscript, script) {
+        awl::io::write_atomic(path, text.as_bytes())?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&plan_json(&plan, &sources))?);
+    } else if !args.quiet {
+        print_summary(&plan, args);
+    }
+    Ok(())
+}
+
+fn print_summary(plan: &PiercePlan, args: &PierceArgs) {
+    let l = &plan.located;
+    let used = l.detections.iter().filter(|d| d.used).count();
+    println!("tag found in {used} of {} shot views checked {:?}", l.views_checked.len(), l.views_checked);
+    if let Some(r) = &l.refinement {
+        println!(
+            "shot depth registered to the model: {} points, fitness {:.2}, rmse {:.2} mm; it moves the tag {:.2} mm / {:.2} deg ({})",
+            r.points,
+            r.fitness,
+            r.rmse_m * 1e3,
+            r.correction_m * 1e3,
+            r.correction_rad.to_degrees(),
+            if r.applied { "applied".to_string() } else { format!("not applied: {}", r.note) }
+        );
+    }
+    for t in &plan.targets {
+        let (p, a) = (t.p_base, t.axis_base);
+        let angle = t
+            .surface
+            .angle_to_tag_z_rad
+            .map_or(String::new(), |x| format!(", normal vs tag z {:.2} deg", x.to_degrees()));
+        println!(
+            "target {}: p_base ({:.4}, {:.4}, {:.4}) m, axis ({:.3}, {:.3}, {:.3}){angle}",
+            t.surface.spec, p.x, p.y, p.z, a.x, a.y, a.z
+        );
+    }
+    for w in &plan.warnings {
+        println!("warning: {w}");
+    }
+    println!("wrote {}", args.output.display());
+    if let Some(path) = &args.urscript {
+        println!("wrote {}", path.display());
+    }
+}

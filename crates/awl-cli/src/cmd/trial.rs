@@ -1,0 +1,158 @@
+//! `awl trial --scene box|shell --tilt 0|30 --trials 10`: the reference paper's piercing trials in
+//! simulation (calibrate, simulate + fuse, then shots in random placements, then pierce), printed as
+//! its Tables I-IV. See `awl::trial`.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use awl::io::scan::read_scan;
+use awl::pierce::{LocateParams, PierceParams};
+use awl::pipeline::{FuseConfig, fuse};
+use awl::sim::{SceneKind, ShotPose, SimParams, simulate, write_simulation};
+use awl::trial::{ShotSetup, TrialRow, TrialSummary, calibrate_rig, format_table, prepare_workpiece, run_shot};
+use serde_json::json;
+
+use super::common::{prepare_output, set_threads, stage_bar, write_json};
+use super::demo::DemoScene;
+
+/// Arguments of `awl trial`.
+#[derive(clap::Args)]
+pub struct TrialArgs {
+    /// Workpiece.
+    #[arg(long, value_enum, default_value = "box")]
+    pub scene: DemoScene,
+    /// How the workpiece lies at piercing time: flat (0) or tilted 30 degrees (30).
+    #[arg(long, default_value_t = 0)]
+    pub tilt: u32,
+    /// Number of trials (shots in new random placements).
+    #[arg(long, default_value_t = 10)]
+    pub trials: usize,
+    /// Seed of the scan, the calibration and (with the trial number) the shots.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Poses of the simulated hand-eye calibration capture.
+    #[arg(long, default_value_t = 20)]
+    pub calibration_poses: usize,
+    /// Output folder: scan/, fuse/, shots/NN/, table.txt and trial.json (must not exist or be empty, unless --force).
+    #[arg(short = 'o', long = "output", default_value = "awl-trial")]
+    pub output: PathBuf,
+    /// Replace the trial's results in a non-empty output folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Only the table.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn row_json(r: &TrialRow) -> serde_json::Value {
+    let e = r.error();
+    json!({
+        "trial": r.trial, "shot_seed": r.shot_seed,
+        "truth_m": [r.truth.x, r.truth.y, r.truth.z], "estimate_m": [r.estimate.x, r.estimate.y, r.estimate.z],
+        "error_m": [e.x, e.y, e.z], "distance_m": e.norm(),
+        "tag_only_distance_m": (r.estimate_tag_only - r.truth).norm(),
+        "axis_error_deg": r.axis_error_rad.to_degrees(), "refined": r.refined,
+    })
+}
+
+/// Runs `awl trial`.
+pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    set_threads(args.threads)?;
+    anyhow::ensure!(args.tilt == 0 || args.tilt == 30, "--tilt must be 0 or 30, got {}", args.tilt);
+    anyhow::ensure!((1..=1000).contains(&args.trials), "--trials must be 1 to 1000, got {}", args.trials);
+    prepare_output(&args.output, args.force, &["scan", "fuse", "shots"])?;
+    let say = |line: String| {
+        if !args.quiet {
+            println!("{line}");
+        }
+    };
+    let scene = match args.scene {
+        DemoScene::Box => SceneKind::Box,
+        DemoScene::Shell => SceneKind::Shell,
+    };
+    let pose = if args.tilt == 30 { ShotPose::Tilt30 } else { ShotPose::Flat };
+
+    let hand_eye = calibrate_rig(args.seed, args.calibration_poses).context("hand-eye calibration")?;
+    say(format!(
+        "[1/3] hand-eye calibrated from {} simulated poses: {:.2} mm / {:.3} deg from the true T_ee_camera",
+        hand_eye.poses,
+        hand_eye.error_m * 1e3,
+        hand_eye.error_rad.to_degrees()
+    ));
+
+    let t = Instant::now();
+    let sim = simulate(&SimParams { seed: args.seed, ..SimParams::scan(scene) }).context("simulating the scan")?;
+    let scan_dir = args.output.join("scan");
+    write_simulation(&scan_dir, &sim, args.force)?;
+    let scan = read_scan(&scan_dir)?;
+    let bar = stage_bar(args.quiet);
+    let progress = |stage: &str, done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        bar.set_message(stage.to_string());
+    };
+    let fused = fuse(&scan, &FuseConfig::default(), &progress)?;
+    bar.finish_and_clear();
+    super::fuse::write_outputs(&args.output.join("fuse"), &scan, &fused, None)?;
+    let wp = prepare_workpiece(scene, &scan, &sim.truth, &sim.cad, &fused).context("the workpiece on the model")?;
+    say(format!(
+        "[2/3] scanned and fused the {} ({} views, {} points, {:.1} s); target `{}` picked as {}",
+        scene.name(),
+        scan.views.len(),
+        fused.model.len(),
+        t.elapsed().as_secs_f64(),
+        wp.target.name,
+        wp.spec
+    ));
+
+    let setup = ShotSetup {
+        scene,
+        pose,
+        seed: args.seed,
+        ee_from_camera: hand_eye.ee_from_camera,
+        params: PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() },
+    };
+    let bar = stage_bar(args.quiet);
+    bar.set_length(args.trials as u64);
+    bar.set_message("shots");
+    let mut rows = Vec::with_capacity(args.trials);
+    for k in 1..=args.trials {
+        let dir = args.output.join("shots").join(format!("{k:02}"));
+        rows.push(run_shot(&wp, &setup, k, &dir).with_context(|| format!("trial {k} ({})", dir.display()))?);
+        bar.set_position(k as u64);
+    }
+    bar.finish_and_clear();
+    let title = format!(
+        "{} {} (tilt {} deg), target `{}`, {} trials, seed {} [3/3 done in {:.1} s]",
+        scene.name(),
+        pose.name(),
+        args.tilt,
+        wp.target.name,
+        args.trials,
+        args.seed,
+        start.elapsed().as_secs_f64()
+    );
+    let table = format_table(&title, &rows);
+    let s = TrialSummary::of(&rows);
+    awl::io::write_atomic(&args.output.join("table.txt"), table.as_bytes())?;
+    write_json(
+        &args.output.join("trial.json"),
+        &json!({
+            "scene": scene.name(), "pose": pose.name(), "tilt_deg": args.tilt, "seed": args.seed,
+            "target": wp.target.name, "target_spec": wp.spec.to_string(),
+            "hand_eye": { "poses": hand_eye.poses, "error_m": hand_eye.error_m, "error_deg": hand_eye.error_rad.to_degrees() },
+            "summary": { "trials": s.trials, "mean_m": s.mean_m, "std_m": s.std_m, "max_m": s.max_m,
+                         "mean_axis_error_deg": s.mean_axis_error_rad.to_degrees(),
+                         "max_axis_error_deg": s.max_axis_error_rad.to_degrees(),
+                         "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined },
+            "rows": rows.iter().map(row_json).collect::<Vec<_>>(),
+        }),
+    )?;
+    print!("{table}");
+    Ok(())
+}

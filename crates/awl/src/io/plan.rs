@@ -1,0 +1,127 @@
+//! `plan.json` (`awl-plan/1`): what `awl pierce` writes for the robot.
+//!
+//! ```json
+//! { "format": "awl-plan/1", "workpiece": "...", "shot": "...", "hand_eye": "scan.json" | "FILE",
+//!   "axis": "normal" | "tag", "approach_m": 0.1, "depth_m": 0.01, "retract_m": 0.1,
+//!   "T_base_model": [[4x4]], "T_base_model_tag": [[4x4]], "T_base_tag": [[4x4]], "T_world_tag": [[4x4]],
+//!   "refinement": { "applied": true, "points": 9000, "fitness": 0.97, "rmse_m": 0.0011,
+//!                   "correction_m": 0.002, "correction_deg": 0.4, "note": "", "T_base_model": [[4x4]] } | null,
+//!   "detections": [ { "view": 0, "id": 0, "rmse_px": 0.2, "used": true, "reason": "", "T_base_tag": [[4x4]] | null } ],
+//!   "targets": [ { "target": "face-centre@0.2,0.1,0.3", "p_model": [x,y,z], "normal_model": [..],
+//!                  "p_base": [..], "normal_base": [..], "axis_base": [..] (unit, into the surface),
+//!                  "angle_normal_tag_deg": 0.8, "fit_rms_m": 0.0003, "fit_points": 812,
+//!                  "corners_model": [[x,y,z] x4] | null,
+//!                  "approach": POSE, "pierce": POSE, "retract": POSE } ],
+//!   "warnings": [] }
+//! ```
+//! `POSE` = `{ "T": [[4x4]], "xyz": [x,y,z], "quaternion_xyzw": [x,y,z,w], "ur_axis_angle": [x,y,z,rx,ry,rz] }`,
+//! base frame, metres.
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use serde_json::{Value, json};
+
+use crate::error::Result;
+use crate::io::write_atomic;
+use crate::pierce::{PiercePlan, quaternion_xyzw, ur_pose};
+use crate::transform::rows_from_isometry;
+
+/// The format tag of plan.json.
+pub const PLAN_FORMAT: &str = "awl-plan/1";
+
+/// Where a plan's inputs came from (recorded in plan.json).
+#[derive(Debug, Clone, Copy)]
+pub struct PlanSources<'a> {
+    /// The workpiece.json read.
+    pub workpiece: &'a Path,
+    /// The shot folder.
+    pub shot: &'a Path,
+    /// Where `T_ee_camera` came from.
+    pub hand_eye: &'a str,
+}
+
+fn xyz(p: &Point3<f64>) -> [f64; 3] {
+    [p.x, p.y, p.z]
+}
+
+fn vec3(v: &Vector3<f64>) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+fn pose(t: &Isometry3<f64>) -> Value {
+    json!({
+        "T": rows_from_isometry(t),
+        "xyz": vec3(&t.translation.vector),
+        "quaternion_xyzw": quaternion_xyzw(&t.rotation),
+        "ur_axis_angle": ur_pose(t),
+    })
+}
+
+/// The plan as JSON (module docs).
+pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
+    let l = &plan.located;
+    let refinement = l.refinement.as_ref().map(|r| {
+        json!({
+            "applied": r.applied, "points": r.points, "fitness": r.fitness,
+            "rmse_m": if r.rmse_m.is_finite() { json!(r.rmse_m) } else { Value::Null },
+            "correction_m": r.correction_m, "correction_deg": r.correction_rad.to_degrees(),
+            "note": r.note, "T_base_model": rows_from_isometry(&r.base_from_model),
+        })
+    });
+    let detections: Vec<Value> = l
+        .detections
+        .iter()
+        .map(|d| {
+            json!({
+                "view": d.view, "id": d.id, "corners_px": d.corners_px,
+                "rmse_px": if d.rmse_px.is_finite() { json!(d.rmse_px) } else { Value::Null },
+                "flipped_by_depth": d.flipped_by_depth, "used": d.used, "reason": d.reason,
+                "T_base_tag": d.world_from_tag.as_ref().map(rows_from_isometry),
+            })
+        })
+        .collect();
+    let targets: Vec<Value> = plan
+        .targets
+        .iter()
+        .map(|t| {
+            let s = &t.surface;
+            json!({
+                "target": s.spec.to_string(),
+                "p_model": xyz(&s.point), "normal_model": vec3(&s.normal),
+                "p_base": xyz(&t.p_base), "normal_base": vec3(&t.normal_base), "axis_base": vec3(&t.axis_base),
+                "angle_normal_tag_deg": s.angle_to_tag_z_rad.map(f64::to_degrees),
+                "fit_rms_m": s.fit_rms_m, "fit_points": s.points,
+                "corners_model": s.corners.map(|c| c.map(|p| xyz(&p))),
+                "approach": pose(&t.poses.approach), "pierce": pose(&t.poses.pierce), "retract": pose(&t.poses.retract),
+            })
+        })
+        .collect();
+    json!({
+        "format": PLAN_FORMAT,
+        "workpiece": sources.workpiece.display().to_string(),
+        "shot": sources.shot.display().to_string(),
+        "hand_eye": sources.hand_eye,
+        "axis": plan.axis.name(),
+        "approach_m": plan.stroke.approach_m, "depth_m": plan.stroke.depth_m, "retract_m": plan.stroke.retract_m,
+        "T_base_model": rows_from_isometry(&l.base_from_model),
+        "T_base_model_tag": rows_from_isometry(&l.base_from_model_tag),
+        "T_base_tag": rows_from_isometry(&l.base_from_tag),
+        "T_world_tag": rows_from_isometry(&plan.world_from_tag),
+        "views_checked": l.views_checked,
+        "refinement": refinement,
+        "detections": detections,
+        "targets": targets,
+        "warnings": plan.warnings,
+    })
+}
+
+/// Writes plan.json atomically.
+///
+/// # Errors
+/// [`crate::Error::Io`] when the file cannot be written.
+pub fn write_plan(path: &Path, plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(&plan_json(plan, sources)).unwrap_or_default();
+    text.push('\n');
+    write_atomic(path, text.as_bytes())
+}

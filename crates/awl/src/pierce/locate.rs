@@ -1,0 +1,266 @@
+//! The workpiece in the robot base frame at piercing time, from a shot (an `awl-scan/1` folder with
+//! world = robot base).
+//!
+//! 1. Tag: every color view of the shot is searched for the workpiece's tag; each detection gives
+//!    `T_base_tag = T_base_ee * T_ee_camera * T_camera_tag` (the ambiguity resolved by the view's
+//!    depth); the views' estimates are averaged robustly ([`crate::workpiece::robust_mean`]). With the
+//!    tag's pose on the model (`T_world_tag` of `workpiece.json`, world = the model's frame):
+//!    `T_base_model = T_base_tag * T_world_tag^-1`.
+//! 2. Depth (when the shot has it): the shot's points (base frame, voxelised, kept within `crop_m`
+//!    of the model placed by the tag) are registered onto the model by point-to-plane ICP seeded by
+//!    that pose. This removes the tag's orientation error (1 degree at 30 cm is 5 mm) but not the
+//!    hand-eye error, which moves the tag and the points alike. The refined pose is used when ICP
+//!    matched enough of the shot and moved the pose by less than the limits; otherwise the tag
+//!    pose is kept and the reason reported.
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::filter::voxel::{VoxelParams, downsample};
+use crate::io::scan::{Scan, TagSpec, load_view};
+use crate::registration::{IcpLevel, IcpParams, register};
+use crate::spatial::KdIndex;
+use crate::transform::pose_difference;
+use crate::workpiece::{TagEstimateParams, ViewTagDetection, estimate_world_from_tag};
+
+/// Parameters of the shot-depth refinement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ShotRefineParams {
+    /// Voxel size of the shot's merged points, metres. Default 0.003.
+    pub voxel_m: f64,
+    /// Shot points farther than this from the model placed by the tag are left out (floor,
+    /// support, clutter), metres. Default 0.03.
+    pub crop_m: f64,
+    /// The ICP schedule. Default: 6 mm voxels / 30 mm gate, 3 / 10, 2 / 4; 40 iterations each.
+    pub icp: IcpParams,
+    /// At least this many shot points must remain after the crop. Default 500.
+    pub min_points: usize,
+    /// At least this fraction of them must find a model point within the final gate. Default 0.5.
+    pub min_fitness: f64,
+    /// The refinement may move the tag's pose by at most this much, metres. Default 0.03.
+    pub max_correction_m: f64,
+    /// ... and rotate it by at most this much, radians. Default 5 degrees.
+    pub max_correction_rad: f64,
+}
+
+impl Default for ShotRefineParams {
+    fn default() -> Self {
+        let level =
+            |voxel_m: f64, max_correspondence_m: f64| IcpLevel { voxel_m, max_correspondence_m, max_iterations: 40 };
+        Self {
+            voxel_m: 0.003,
+            crop_m: 0.03,
+            icp: IcpParams {
+                levels: vec![level(0.006, 0.03), level(0.003, 0.01), level(0.002, 0.004)],
+                ..IcpParams::default()
+            },
+            min_points: 500,
+            min_fitness: 0.5,
+            max_correction_m: 0.03,
+            max_correction_rad: 5f64.to_radians(),
+        }
+    }
+}
+
+/// Parameters of [`locate`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LocateParams {
+    /// Tag detection and the robust mean over the shot's views.
+    pub tag: TagEstimateParams,
+    /// The shot-depth refinement; `None`: the tag pose alone.
+    pub refine: Option<ShotRefineParams>,
+}
+
+impl LocateParams {
+    /// The default detection and refinement.
+    pub fn with_refinement() -> Self {
+        Self { tag: TagEstimateParams::default(), refine: Some(ShotRefineParams::default()) }
+    }
+}
+
+/// What the shot-depth refinement did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShotRefinement {
+    /// Whether its pose is used.
+    pub applied: bool,
+    /// `T_base_model` from ICP (reported even when not applied).
+    pub base_from_model: Isometry3<f64>,
+    /// Shot points registered (after voxel and crop).
+    pub points: usize,
+    /// ICP fitness (fraction of them with a model point within the final gate).
+    pub fitness: f64,
+    /// RMS point-to-plane residual of those, metres.
+    pub rmse_m: f64,
+    /// How far the refinement moved the model's origin... measured at the tag: translation, metres.
+    pub correction_m: f64,
+    /// ... and rotation, radians.
+    pub correction_rad: f64,
+    /// Why it was not applied (empty when applied).
+    pub note: String,
+}
+
+/// The workpiece located in the base frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Located {
+    /// `T_base_tag`: the robust mean of the shot views' detections.
+    pub base_from_tag: Isometry3<f64>,
+    /// `T_base_model` from the tag alone.
+    pub base_from_model_tag: Isometry3<f64>,
+    /// `T_base_model` used: the refined one when applied, else the tag's.
+    pub base_from_model: Isometry3<f64>,
+    /// The shot-depth refinement, when asked for and the shot has depth.
+    pub refinement: Option<ShotRefinement>,
+    /// Shot views searched for the tag.
+    pub views_checked: Vec<usize>,
+    /// Every tag detection in the shot (`world_from_tag` = `T_base_tag` of that view).
+    pub detections: Vec<ViewTagDetection>,
+    /// Things the user should know.
+    pub warnings: Vec<String>,
+}
+
+fn shot_error(shot: &Scan, message: impl Into<String>) -> Error {
+    Error::invalid(format!("shot {}", shot.dir.display()), message)
+}
+
+/// Locates the workpiece (its model, in `T_world_tag`'s frame) in the shot's base frame.
+///
+/// # Errors
+/// [`Error::Invalid`] naming the shot folder when the shot declares another tag than the
+/// workpiece's, has no color image, or no view shows the tag usably (listing the views checked
+/// and what each saw); any error loading a view.
+pub fn locate(
+    shot: &Scan,
+    tag: &TagSpec,
+    world_from_tag: &Isometry3<f64>,
+    model: &PointCloud,
+    params: &LocateParams,
+) -> Result<Located> {
+    if let Some(declared) = &shot.tag {
+        if declared.family != tag.family || declared.id != tag.id || (declared.size_m - tag.size_m).abs() > 1e-6 {
+            return Err(shot_error(
+                shot,
+                format!(
+                    "scan.json declares tag {} id {} size {} m, but the workpiece's tag is {} id {} size {} m",
+                    declared.family, declared.id, declared.size_m, tag.family, tag.id, tag.size_m
+                ),
+            ));
+        }
+    }
+    let mut shot_with_tag = shot.clone();
+    shot_with_tag.tag = Some(tag.clone());
+    let poses: Vec<Option<Isometry3<f64>>> =
+        (0..shot.views.len()).map(|i| shot.world_from_camera(i).map(Some)).collect::<Result<_>>()?;
+    let estimate = estimate_world_from_tag(&shot_with_tag, &poses, &params.tag)?;
+    if estimate.views_checked.is_empty() {
+        return Err(shot_error(shot, "no view has a color image: the tag cannot be detected"));
+    }
+    let Some(base_from_tag) = estimate.world_from_tag else {
+        let checked: Vec<String> = estimate.views_checked.iter().map(usize::to_string).collect();
+        let seen: Vec<String> = estimate.detections.iter().map(|d| format!("view {}: {}", d.view, d.reason)).collect();
+        let seen = if seen.is_empty() { "no tag of any id".to_string() } else { seen.join("; ") };
+        return Err(shot_error(
+            shot,
+            format!(
+                "tag {} id {} not found usably in the views checked [{}] ({seen})",
+                tag.family,
+                tag.id,
+                checked.join(", ")
+            ),
+        ));
+    };
+    let base_from_model_tag = base_from_tag * world_from_tag.inverse();
+    let mut warnings = estimate.warnings;
+    let mut base_from_model = base_from_model_tag;
+    let has_depth = shot.camera.is_some();
+    let refinement = match (&params.refine, has_depth) {
+        (Some(p), true) => {
+            let r = refine_with_depth(shot, model, &base_from_model_tag, world_from_tag, p)?;
+            if r.applied {
+                base_from_model = r.base_from_model;
+            } else {
+                warnings.push(format!("shot-depth refinement not applied ({}): the tag pose is used", r.note));
+            }
+            Some(r)
+        }
+        _ => None,
+    };
+    Ok(Located {
+        base_from_tag,
+        base_from_model_tag,
+        base_from_model,
+        refinement,
+        views_checked: estimate.views_checked,
+        detections: estimate.detections,
+        warnings,
+    })
+}
+
+/// The shot's points (base frame), merged and voxelised.
+fn shot_points(shot: &Scan, voxel_m: f64) -> Result<PointCloud> {
+    let rays = shot.camera.as_ref().map(|c| c.intrinsics.ray_table());
+    let mut merged = PointCloud::default();
+    for i in 0..shot.views.len() {
+        let view = load_view(shot, i, rays.as_deref())?;
+        merged.extend(&view.cloud_camera.transformed(&view.world_from_camera));
+    }
+    downsample(&merged, &VoxelParams { voxel_size_m: voxel_m })
+}
+
+fn refine_with_depth(
+    shot: &Scan,
+    model: &PointCloud,
+    seed: &Isometry3<f64>,
+    world_from_tag: &Isometry3<f64>,
+    params: &ShotRefineParams,
+) -> Result<ShotRefinement> {
+    let points = shot_points(shot, params.voxel_m)?;
+    let index = KdIndex::new(&model.points)?;
+    let model_from_base = seed.inverse();
+    let crop = (params.crop_m * params.crop_m) as f32;
+    let keep: Vec<usize> = (0..points.len())
+        .filter(|&i| {
+            let q = (model_from_base * points.points[i].cast::<f64>()).cast::<f32>();
+            index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
+        })
+        .collect();
+    let source = points.select(&keep);
+    let mut r = ShotRefinement {
+        applied: false,
+        base_from_model: *seed,
+        points: source.len(),
+        fitness: 0.0,
+        rmse_m: f64::NAN,
+        correction_m: 0.0,
+        correction_rad: 0.0,
+        note: String::new(),
+    };
+    if source.len() < params.min_points {
+        r.note = format!("{} shot points near the model, fewer than {}", source.len(), params.min_points);
+        return Ok(r);
+    }
+    let icp = register(&source, model, &model_from_base, &params.icp)?;
+    r.base_from_model = icp.target_from_source.inverse();
+    r.fitness = icp.fitness;
+    r.rmse_m = icp.inlier_rmse_m;
+    // the correction as it moves the tag (where the targets are read from)
+    let (dt, dr) = pose_difference(&(r.base_from_model * world_from_tag), &(seed * world_from_tag));
+    (r.correction_m, r.correction_rad) = (dt, dr);
+    if r.fitness < params.min_fitness {
+        r.note = format!("ICP fitness {:.2} < {}", r.fitness, params.min_fitness);
+    } else if dt > params.max_correction_m || dr > params.max_correction_rad {
+        r.note = format!(
+            "it would move the tag {:.1} mm / {:.2} deg (limits {:.1} mm / {:.2} deg)",
+            dt * 1e3,
+            dr.to_degrees(),
+            params.max_correction_m * 1e3,
+            params.max_correction_rad.to_degrees()
+        );
+    } else {
+        r.applied = true;
+    }
+    Ok(r)
+}

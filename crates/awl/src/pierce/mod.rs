@@ -1,0 +1,16 @@
+//! Piercing: the workpiece located in the robot base frame from a piercing-time shot ([`locate`]),
+//! targets on the model turned into tool poses there ([`plan`], [`tool`]) and robot programs
+//! ([`script`]); plan.json I/O in [`crate::io::plan`].
+//!
+//! Frames: `base` = the robot base (the shot's world frame); `model` = the fused model's frame (the
+//! scan's world frame), where `workpiece.json` gives `T_world_tag`; tool z = the piercing direction.
+
+pub mod locate;
+pub mod plan;
+pub mod script;
+pub mod tool;
+
+pub use locate::{LocateParams, Located, ShotRefineParams, ShotRefinement, locate};
+pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
+pub use script::{ScriptSpeeds, urscript};
+pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tool_poses, ur_pose};

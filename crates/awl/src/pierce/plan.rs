@@ -1,0 +1,134 @@
+//! The piercing plan: targets placed on the model, the model located in the base frame from a
+//! shot, and for each target the point, the piercing axis and the tool poses in the base frame.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::io::scan::{Scan, TagSpec};
+use crate::pierce::locate::{LocateParams, Located, locate};
+use crate::pierce::tool::{Stroke, ToolPoses, tool_poses};
+use crate::workpiece::{SurfaceModel, SurfaceTarget, TargetParams, TargetSpec};
+
+/// Which direction the tool pierces along.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AxisChoice {
+    /// Into the model's surface at the target (right for curved surfaces). The default.
+    #[default]
+    Normal,
+    /// Along the tag's z axis, into the workpiece (the reference system's choice).
+    Tag,
+}
+
+impl AxisChoice {
+    /// The name used on the command line and in plan.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Normal => "normal",
+            Self::Tag => "tag",
+        }
+    }
+}
+
+/// Parameters of [`plan`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PierceParams {
+    /// Target placement on the model.
+    pub targets: TargetParams,
+    /// Tag detection in the shot and the shot-depth refinement.
+    pub locate: LocateParams,
+    /// The piercing direction.
+    pub axis: AxisChoice,
+    /// Distances along the axis.
+    pub stroke: Stroke,
+}
+
+/// One target of the plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlannedTarget {
+    /// The target on the model (model frame).
+    pub surface: SurfaceTarget,
+    /// The surface point, base frame.
+    pub p_base: Point3<f64>,
+    /// The outward surface normal, base frame.
+    pub normal_base: Vector3<f64>,
+    /// The piercing direction (unit, into the surface), base frame.
+    pub axis_base: Vector3<f64>,
+    /// The tool poses, base frame.
+    pub poses: ToolPoses,
+}
+
+/// A piercing plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PiercePlan {
+    /// Where the workpiece is (and how it was found).
+    pub located: Located,
+    /// The model's tag pose used (`T_world_tag`, model frame).
+    pub world_from_tag: Isometry3<f64>,
+    /// The axis choice.
+    pub axis: AxisChoice,
+    /// The stroke.
+    pub stroke: Stroke,
+    /// The targets, in the order asked.
+    pub targets: Vec<PlannedTarget>,
+    /// Things the user should know (from locating and placing).
+    pub warnings: Vec<String>,
+}
+
+/// Places `specs` on `model` (failing before any image is read when one is off the model), locates
+/// the model in the shot's base frame and plans the tool poses.
+///
+/// # Errors
+/// [`Error::Invalid`] for no target, a target off the model, or any error of [`locate`].
+pub fn plan(
+    model: &PointCloud,
+    tag: &TagSpec,
+    world_from_tag: &Isometry3<f64>,
+    shot: &Scan,
+    specs: &[TargetSpec],
+    params: &PierceParams,
+) -> Result<PiercePlan> {
+    if specs.is_empty() {
+        return Err(Error::invalid("targets", "no target given"));
+    }
+    params.stroke.validate()?;
+    let surface = SurfaceModel::new(model)?;
+    let placed: Vec<SurfaceTarget> =
+        specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
+    let located = locate(shot, tag, world_from_tag, model, &params.locate)?;
+    let mut warnings = located.warnings.clone();
+    let base_from_model = located.base_from_model;
+    let tag_axis = -((base_from_model * world_from_tag).rotation * Vector3::z());
+    let targets = placed
+        .into_iter()
+        .map(|surface| {
+            let p_base = base_from_model * surface.point;
+            let normal_base = base_from_model.rotation * surface.normal;
+            let axis_base = match params.axis {
+                AxisChoice::Normal => -normal_base,
+                AxisChoice::Tag => tag_axis,
+            };
+            if let Some(a) =
+                surface.angle_to_tag_z_rad.filter(|a| params.axis == AxisChoice::Tag && *a > 10f64.to_radians())
+            {
+                warnings.push(format!(
+                    "target {}: the tag's z axis is {:.1} deg from the surface normal: the tool will not pierce square",
+                    surface.spec,
+                    a.to_degrees()
+                ));
+            }
+            let poses = tool_poses(&p_base, &axis_base, &params.stroke)?;
+            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(PiercePlan {
+        located,
+        world_from_tag: *world_from_tag,
+        axis: params.axis,
+        stroke: params.stroke,
+        targets,
+        warnings,
+    })
+}

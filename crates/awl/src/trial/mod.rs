@@ -1,0 +1,202 @@
+//! The piercing trials of the reference paper (its Tables I-IV), in simulation: the whole workflow
+//! against ground truth.
+//!
+//! 1. Hand-eye: a simulated calibration capture of the rig's camera ([`calibrate_rig`]: `count`
+//!    poses, 0.5 mm / 0.1 degree tag noise) solved by [`crate::handeye::calibrate`]; its
+//!    `T_ee_camera` replaces the shots' recorded one, as a user would after calibrating.
+//! 2. Modeling (done by the caller: simulate a scan, `fuse`): [`prepare_workpiece`] estimates the
+//!    tag on the model and picks the target on it. Where the user clicks is defined through the
+//!    model's alignment onto the CAD (ICP from the true pose, as `awl evaluate` does): a face centre
+//!    is picked 5 cm off the true centre and 3 mm above the face (the method must find the centre),
+//!    a point on a curved surface exactly at the true target (the method snaps it).
+//! 3. Per trial ([`run_shot`]): a shot of the workpiece in a new random placement (seeded per trial),
+//!    [`crate::pierce::plan`], and the planned point and axis against the shot's truth (robot
+//!    base frame).
+
+mod table;
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::eval::{EvaluateParams, evaluate};
+use crate::handeye::{HandEyeParams, calibrate};
+use crate::io::scan::{Scan, TagSpec, read_scan};
+use crate::io::truth::{Truth, TruthTarget};
+use crate::mesh::TriMesh;
+use crate::pierce::{PierceParams, plan};
+use crate::pipeline::FuseOutput;
+use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
+use crate::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
+use crate::transform::pose_difference;
+use crate::workpiece::{TargetSpec, WorkpieceParams, workpiece_from_fuse};
+
+pub use table::{TrialSummary, format_table};
+
+/// A calibrated hand-eye and how far it is from the truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibratedHandEye {
+    /// The estimated `T_ee_camera`.
+    pub ee_from_camera: Isometry3<f64>,
+    /// Its error against the rig's true one: translation, metres.
+    pub error_m: f64,
+    /// ... and rotation, radians.
+    pub error_rad: f64,
+    /// Poses of the capture.
+    pub poses: usize,
+}
+
+/// Calibrates the simulated rig's camera from `count` simulated poses (module docs).
+///
+/// # Errors
+/// Any error of the capture simulation or the solver.
+pub fn calibrate_rig(seed: u64, count: usize) -> Result<CalibratedHandEye> {
+    let truth = rig_ee_from_camera();
+    let capture = simulate_calibration(&CalibrationSimParams {
+        seed,
+        count,
+        ee_from_camera: Some(truth),
+        ..CalibrationSimParams::default()
+    })?;
+    let result = calibrate(&capture.poses, &HandEyeParams::default())?;
+    let (error_m, error_rad) = pose_difference(&result.ee_from_camera, &truth);
+    Ok(CalibratedHandEye { ee_from_camera: result.ee_from_camera, error_m, error_rad, poses: count })
+}
+
+/// The modeled workpiece the trials pierce.
+#[derive(Debug, Clone)]
+pub struct TrialWorkpiece {
+    /// The fused model (model frame = the scan's world frame).
+    pub model: PointCloud,
+    /// The tag.
+    pub tag: TagSpec,
+    /// `T_world_tag` on the model.
+    pub world_from_tag: Isometry3<f64>,
+    /// The model's alignment onto the CAD (defines where the user clicks only).
+    pub object_from_model: Isometry3<f64>,
+    /// The truth target.
+    pub target: TruthTarget,
+    /// The target as the user gives it (model frame).
+    pub spec: TargetSpec,
+}
+
+/// Picks the target a user would give for `target` on a model aligned by `object_from_model`.
+pub fn pick_target(scene: SceneKind, target: &TruthTarget, object_from_model: &Isometry3<f64>) -> TargetSpec {
+    let model_from_object = object_from_model.inverse();
+    match scene {
+        SceneKind::Box => {
+            let n = target.n_object.normalize();
+            let along = Vector3::new(0.04, -0.03, 0.02);
+            let in_face = along - n * along.dot(&n);
+            TargetSpec::FaceCentre(model_from_object * (target.p_object + in_face.normalize() * 0.05 + n * 0.003))
+        }
+        _ => TargetSpec::Point(model_from_object * target.p_object),
+    }
+}
+
+/// The tag on the fused model and the target on it (module docs).
+///
+/// # Errors
+/// [`Error::Invalid`] when the scan has no tag or no view sees it, or the truth no target; any
+/// error of the alignment onto the CAD.
+pub fn prepare_workpiece(
+    scene: SceneKind,
+    scan: &Scan,
+    truth: &Truth,
+    cad: &TriMesh,
+    fused: &FuseOutput,
+) -> Result<TrialWorkpiece> {
+    let wp = workpiece_from_fuse(scan, &fused.poses, &fused.model, "model.ply", &WorkpieceParams::default())?
+        .ok_or_else(|| Error::invalid("scan", "declares no tag"))?;
+    let world_from_tag = wp
+        .world_from_tag
+        .ok_or_else(|| Error::invalid("workpiece", format!("no tag pose: {}", wp.warnings.join("; "))))?;
+    let target = truth.targets.first().cloned().ok_or_else(|| Error::invalid("truth.json targets", "none"))?;
+    let start = truth.world_from_object.inverse();
+    let object_from_model = evaluate(&fused.model, cad, Some(&start), &EvaluateParams::default())?.object_from_model;
+    let spec = pick_target(scene, &target, &object_from_model);
+    Ok(TrialWorkpiece { model: fused.model.clone(), tag: wp.tag, world_from_tag, object_from_model, target, spec })
+}
+
+/// One trial's outcome, robot base frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialRow {
+    /// Trial number (1-based).
+    pub trial: usize,
+    /// Seed of the shot.
+    pub shot_seed: u64,
+    /// The true target point.
+    pub truth: Point3<f64>,
+    /// The planned point.
+    pub estimate: Point3<f64>,
+    /// The point planned from the tag pose alone (no shot-depth refinement).
+    pub estimate_tag_only: Point3<f64>,
+    /// Angle between the planned axis and the true inward normal, radians.
+    pub axis_error_rad: f64,
+    /// Whether the shot-depth refinement was applied.
+    pub refined: bool,
+}
+
+impl TrialRow {
+    /// Estimate minus truth, metres.
+    pub fn error(&self) -> Vector3<f64> {
+        self.estimate - self.truth
+    }
+}
+
+/// Seed of trial `k` (1-based) of a run seeded `seed`.
+pub fn shot_seed(seed: u64, k: usize) -> u64 {
+    seed * 1000 + k as u64
+}
+
+/// What every shot of a trial run shares.
+#[derive(Debug, Clone)]
+pub struct ShotSetup {
+    /// The workpiece.
+    pub scene: SceneKind,
+    /// How it lies.
+    pub pose: ShotPose,
+    /// Seed of the run (each trial's shot gets [`shot_seed`]).
+    pub seed: u64,
+    /// The `T_ee_camera` used at piercing time (e.g. [`calibrate_rig`]'s).
+    pub ee_from_camera: Isometry3<f64>,
+    /// Planning parameters.
+    pub params: PierceParams,
+}
+
+/// Simulates the shot of trial `k` (1-based) into `dir`, plans the target and compares with the truth.
+///
+/// # Errors
+/// Any error of the simulation, writing, or planning (e.g. the tag not found).
+pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) -> Result<TrialRow> {
+    let shot_seed = shot_seed(setup.seed, k);
+    let (scene, pose, params) = (setup.scene, setup.pose, &setup.params);
+    let sim =
+        simulate(&SimParams { scene, views: 2, seed: shot_seed, noise: NoiseLevel::Realistic, shot: Some(pose) })?;
+    write_simulation(dir, &sim, false)?;
+    let mut shot = read_scan(dir)?;
+    shot.ee_from_camera = Some(setup.ee_from_camera);
+    let truth_target = sim
+        .truth
+        .targets
+        .iter()
+        .find(|t| t.name == wp.target.name)
+        .ok_or_else(|| Error::invalid("shot truth", format!("no target {}", wp.target.name)))?;
+    let (truth, n_base) = match (truth_target.p_world, truth_target.n_world) {
+        (Some(p), Some(n)) => (p, n),
+        _ => return Err(Error::invalid("shot truth", "the target has no p_world / n_world")),
+    };
+    let planned = plan(&wp.model, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+    let t = &planned.targets[0];
+    Ok(TrialRow {
+        trial: k,
+        shot_seed,
+        truth,
+        estimate: t.p_base,
+        estimate_tag_only: planned.located.base_from_model_tag * t.surface.point,
+        axis_error_rad: t.axis_base.angle(&-n_base),
+        refined: planned.located.refinement.as_ref().is_some_and(|r| r.applied),
+    })
+}

@@ -1,0 +1,135 @@
+//! The trials as the paper's Tables I-IV: per trial the true and estimated point (mm, robot base
+//! frame), the per-axis error and the distance; then the average and standard deviation (of the
+//! absolute per-axis errors and of the distance), plus the tool-axis error and the tag-only figures.
+
+use std::fmt::Write as _;
+
+use super::TrialRow;
+
+/// Statistics of a set of trials.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrialSummary {
+    /// Trials.
+    pub trials: usize,
+    /// Mean distance, metres.
+    pub mean_m: f64,
+    /// Sample standard deviation of the distance, metres.
+    pub std_m: f64,
+    /// Largest distance, metres.
+    pub max_m: f64,
+    /// Mean absolute error per axis, metres.
+    pub mean_abs_axis_m: [f64; 3],
+    /// Largest tool-axis error, radians.
+    pub max_axis_error_rad: f64,
+    /// Mean tool-axis error, radians.
+    pub mean_axis_error_rad: f64,
+    /// Mean distance from the tag pose alone, metres.
+    pub mean_tag_only_m: f64,
+    /// Trials where the shot-depth refinement was applied.
+    pub refined: usize,
+}
+
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 }
+}
+
+fn std(v: &[f64]) -> f64 {
+    if v.len() < 2 {
+        return 0.0;
+    }
+    let m = mean(v);
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+}
+
+impl TrialSummary {
+    /// Summarises `rows`.
+    pub fn of(rows: &[TrialRow]) -> Self {
+        let d: Vec<f64> = rows.iter().map(|r| r.error().norm()).collect();
+        let a: Vec<f64> = rows.iter().map(|r| r.axis_error_rad).collect();
+        let tag: Vec<f64> = rows.iter().map(|r| (r.estimate_tag_only - r.truth).norm()).collect();
+        let axis = |i: usize| mean(&rows.iter().map(|r| r.error()[i].abs()).collect::<Vec<_>>());
+        Self {
+            trials: rows.len(),
+            mean_m: mean(&d),
+            std_m: std(&d),
+            max_m: d.iter().copied().fold(0.0, f64::max),
+            mean_abs_axis_m: [axis(0), axis(1), axis(2)],
+            max_axis_error_rad: a.iter().copied().fold(0.0, f64::max),
+            mean_axis_error_rad: mean(&a),
+            mean_tag_only_m: mean(&tag),
+            refined: rows.iter().filter(|r| r.refined).count(),
+        }
+    }
+}
+
+/// The table (module docs), `title` above it, as monospaced text.
+pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
+    let mm = |v: f64| v * 1e3;
+    let mut s = String::new();
+    let _ = writeln!(s, "{title}");
+    let _ = writeln!(
+        s,
+        "{:>5} | {:>26} | {:>26} | {:>22} | {:>8} | {:>8}",
+        "trial", "GT x, y, z (mm)", "estimate x, y, z (mm)", "error x, y, z (mm)", "dist mm", "axis deg"
+    );
+    let _ = writeln!(s, "{}", "-".repeat(110));
+    for r in rows {
+        let (g, e, d) = (r.truth, r.estimate, r.error());
+        let _ = writeln!(
+            s,
+            "{:>5} | {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2}",
+            r.trial,
+            mm(g.x),
+            mm(g.y),
+            mm(g.z),
+            mm(e.x),
+            mm(e.y),
+            mm(e.z),
+            mm(d.x),
+            mm(d.y),
+            mm(d.z),
+            mm(d.norm()),
+            r.axis_error_rad.to_degrees()
+        );
+    }
+    let sum = TrialSummary::of(rows);
+    let axis_std = |i: usize| {
+        let v: Vec<f64> = rows.iter().map(|r| r.error()[i].abs()).collect();
+        std(&v)
+    };
+    let _ = writeln!(s, "{}", "-".repeat(110));
+    let a = sum.mean_abs_axis_m;
+    let _ = writeln!(
+        s,
+        "{:>5} | {:>26} | {:>26} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2}",
+        "avg",
+        "",
+        "",
+        mm(a[0]),
+        mm(a[1]),
+        mm(a[2]),
+        mm(sum.mean_m),
+        sum.mean_axis_error_rad.to_degrees()
+    );
+    let _ = writeln!(
+        s,
+        "{:>5} | {:>26} | {:>26} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} |",
+        "std",
+        "",
+        "",
+        mm(axis_std(0)),
+        mm(axis_std(1)),
+        mm(axis_std(2)),
+        mm(sum.std_m)
+    );
+    let _ = writeln!(
+        s,
+        "max distance {:.2} mm, max axis error {:.2} deg; tag pose alone: mean {:.2} mm; shot-depth refinement applied in {} of {}",
+        mm(sum.max_m),
+        sum.max_axis_error_rad.to_degrees(),
+        mm(sum.mean_tag_only_m),
+        sum.refined,
+        sum.trials
+    );
+    s
+}

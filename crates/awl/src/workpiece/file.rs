@@ -1,0 +1,104 @@
+//! The workpiece record `awl fuse` leaves beside the model (`workpiece.json`, format
+//! `awl-workpiece/1`, read and written by [`crate::io::workpiece`]): the model file, where the tag
+//! is on it (`T_world_tag`, world = the model's frame), the tag spec and every detection.
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::io::scan::{Scan, TagSpec};
+use crate::workpiece::refine::{RefineParams, Refinement, refine_on_model};
+use crate::workpiece::tag_pose::{TagEstimateParams, ViewTagDetection, estimate_world_from_tag};
+
+/// The format string of `workpiece.json`.
+pub const WORKPIECE_FORMAT: &str = "awl-workpiece/1";
+/// The file name `awl fuse` writes.
+pub const WORKPIECE_FILE: &str = "workpiece.json";
+
+/// Parameters of [`workpiece_from_fuse`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WorkpieceParams {
+    /// Tag detection and averaging. Default: [`TagEstimateParams::default`].
+    pub tag: TagEstimateParams,
+    /// Refinement of the tag plane on the model (`None`: the averaged detections as they are).
+    /// Default: `Some(RefineParams::default())`.
+    pub refine: Option<RefineParams>,
+}
+
+impl Default for WorkpieceParams {
+    fn default() -> Self {
+        Self { tag: TagEstimateParams::default(), refine: Some(RefineParams::default()) }
+    }
+}
+
+/// The content of `workpiece.json`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Workpiece {
+    /// The model's file name, relative to `workpiece.json`'s folder (e.g. `model.ply`).
+    pub model: String,
+    /// `T_world_tag`: the tag in the model's frame; None when no view saw the tag.
+    pub world_from_tag: Option<Isometry3<f64>>,
+    /// The tag (scan.json's `tag`).
+    pub tag: TagSpec,
+    /// The views searched for the tag.
+    pub views_checked: Vec<usize>,
+    /// Every tag detection in those views, used or not and why.
+    pub detections: Vec<ViewTagDetection>,
+    /// The plane refinement on the model, when run.
+    pub refinement: Option<Refinement>,
+    /// Warnings for the user.
+    pub warnings: Vec<String>,
+}
+
+impl Workpiece {
+    /// `T_world_tag`, or an error naming `path` and the field when no view saw the tag.
+    ///
+    /// # Errors
+    /// [`Error::Field`] `T_world_tag` when it is missing.
+    pub fn require_world_from_tag(&self, path: &std::path::Path) -> Result<Isometry3<f64>> {
+        self.world_from_tag.ok_or_else(|| {
+            Error::field(path, "T_world_tag", "missing: no view of the scan saw the tag (see `warnings`)")
+        })
+    }
+}
+
+/// Builds the workpiece record of a fused scan: the tag seen from the views with their registered
+/// poses (`world_from_camera`, e.g. `FuseOutput::poses`), refined on `model`. `None` when the scan
+/// declares no tag. A tag that no view sees is not an error: `world_from_tag` is None and a warning
+/// names the views checked.
+///
+/// # Errors
+/// [`Error::Invalid`] for an unsupported tag; any error of loading a view.
+pub fn workpiece_from_fuse(
+    scan: &Scan,
+    world_from_camera: &[Option<Isometry3<f64>>],
+    model: &PointCloud,
+    model_file: &str,
+    params: &WorkpieceParams,
+) -> Result<Option<Workpiece>> {
+    let Some(tag) = scan.tag.clone() else { return Ok(None) };
+    let estimate = estimate_world_from_tag(scan, world_from_camera, &params.tag)?;
+    let mut warnings = estimate.warnings;
+    let mut world_from_tag = estimate.world_from_tag;
+    let mut refinement = None;
+    if let (Some(pose), Some(refine)) = (world_from_tag, &params.refine) {
+        let r = refine_on_model(&pose, tag.size_m, model, &estimate.sightings, refine)?;
+        if r.applied {
+            world_from_tag = Some(r.world_from_tag);
+        } else {
+            warnings.push(format!("tag plane not refined on the model: {}", r.note));
+        }
+        refinement = Some(r);
+    }
+    Ok(Some(Workpiece {
+        model: model_file.into(),
+        world_from_tag,
+        tag,
+        views_checked: estimate.views_checked,
+        detections: estimate.detections,
+        refinement,
+        warnings,
+    }))
+}

@@ -1,0 +1,278 @@
+//! `world_from_tag` from the color views of a fused scan: detect the declared tag in every view,
+//! estimate its pose (the planar ambiguity resolved by the view's depth points), map it to the world
+//! with the view's registered pose, reject outliers and average (see [`robust_mean`]).
+
+use nalgebra::{Isometry3, Point3};
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Intrinsics;
+use crate::error::{Error, Result};
+use crate::image::ColorImage;
+use crate::io::scan::{Scan, TagSpec, ViewData, load_view};
+use crate::tag::{AprilTagDetector, DetectorParams, TagDetector, estimate_tag_pose, score_depth};
+use crate::workpiece::mean::{MeanParams, robust_mean};
+
+/// The only tag family the detector decodes.
+pub const SUPPORTED_FAMILY: &str = "tag36h11";
+
+/// Parameters of [`estimate_world_from_tag`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TagEstimateParams {
+    /// The AprilTag detector's settings. Default: [`DetectorParams::default`].
+    pub detector: DetectorParams,
+    /// A detection whose pose reprojects its corners worse than this is rejected, pixels. Default 1.5.
+    pub max_rmse_px: f64,
+    /// A detection whose shortest quad edge is below this is rejected (too small for a reliable
+    /// pose), pixels. Default 20.
+    pub min_side_px: f64,
+    /// Outlier rejection and averaging of the per-view poses. Default: [`MeanParams::default`].
+    pub mean: MeanParams,
+}
+
+impl Default for TagEstimateParams {
+    fn default() -> Self {
+        Self { detector: DetectorParams::default(), max_rmse_px: 1.5, min_side_px: 20.0, mean: MeanParams::default() }
+    }
+}
+
+/// One tag detected in one view.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewTagDetection {
+    /// Index of the view in the scan.
+    pub view: usize,
+    /// Decoded tag id.
+    pub id: u32,
+    /// Black-border corners in AprilTag order, pixels (integer = pixel centre).
+    pub corners_px: [[f64; 2]; 4],
+    /// Reprojection RMSE of the chosen pose solution, pixels (NaN when no pose was estimated).
+    pub rmse_px: f64,
+    /// True when the depth points preferred the second planar-ambiguity solution.
+    pub flipped_by_depth: bool,
+    /// The tag pose this view gives, `T_world_tag` (None when no pose was estimated).
+    pub world_from_tag: Option<Isometry3<f64>>,
+    /// True when this detection went into the mean.
+    pub used: bool,
+    /// Why it was rejected (empty when used).
+    pub reason: String,
+}
+
+/// A view handed to [`estimate_from_views`]: its image, depth points and registered pose.
+#[derive(Debug, Clone, Copy)]
+pub struct TagView<'a> {
+    /// Index of the view in the scan (reported back in [`ViewTagDetection::view`]).
+    pub index: usize,
+    /// The color image.
+    pub image: &'a ColorImage,
+    /// The view's depth points, camera frame (may be empty: then the ambiguity is not resolved by depth).
+    pub points_camera: &'a [Point3<f32>],
+    /// The view's registered `T_world_camera`.
+    pub world_from_camera: Isometry3<f64>,
+}
+
+/// A used detection's line of sight, world frame: from the camera centre through the tag origin it saw.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sighting {
+    /// The view.
+    pub view: usize,
+    /// The camera centre.
+    pub camera: Point3<f64>,
+    /// The tag origin this view estimated (its direction from the camera is precise; its range is not).
+    pub tag_origin: Point3<f64>,
+}
+
+/// Result of the tag estimation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TagEstimate {
+    /// The mean `T_world_tag`; None when no view saw the declared tag usably.
+    pub world_from_tag: Option<Isometry3<f64>>,
+    /// The views searched for the tag (those with a color image and a registered pose).
+    pub views_checked: Vec<usize>,
+    /// Every tag found in those views, used or not.
+    pub detections: Vec<ViewTagDetection>,
+    /// The lines of sight of the detections used (for [`crate::workpiece::refine_on_model`]).
+    pub sightings: Vec<Sighting>,
+    /// What the caller should tell the user (e.g. the tag was not seen).
+    pub warnings: Vec<String>,
+}
+
+/// Checks that `tag` can be detected.
+///
+/// # Errors
+/// [`Error::Invalid`] for another family than tag36h11 or a non-positive size.
+pub fn check_tag_spec(tag: &TagSpec) -> Result<()> {
+    if tag.family != SUPPORTED_FAMILY {
+        return Err(Error::invalid(
+            "tag.family",
+            format!("\"{}\" is not supported (only {SUPPORTED_FAMILY})", tag.family),
+        ));
+    }
+    if !(tag.size_m.is_finite() && tag.size_m > 0.0) {
+        return Err(Error::invalid("tag.size", format!("must be a positive length in metres, got {}", tag.size_m)));
+    }
+    Ok(())
+}
+
+fn shortest_side_px(c: &[[f64; 2]; 4]) -> f64 {
+    (0..4)
+        .map(|i| ((c[i][0] - c[(i + 1) % 4][0]).powi(2) + (c[i][1] - c[(i + 1) % 4][1]).powi(2)).sqrt())
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Detects and poses the tags of one view (every id; only the declared one gets a pose).
+fn detect_view(
+    detector: &mut AprilTagDetector,
+    view: &TagView<'_>,
+    intrinsics: &Intrinsics,
+    tag: &TagSpec,
+    params: &TagEstimateParams,
+) -> Result<Vec<(ViewTagDetection, Point3<f64>)>> {
+    let camera = Point3::from(view.world_from_camera.translation.vector);
+    let mut out = Vec::new();
+    for d in detector.detect_color(view.image)? {
+        let mut det = ViewTagDetection {
+            view: view.index,
+            id: d.id,
+            corners_px: d.corners_px,
+            rmse_px: f64::NAN,
+            flipped_by_depth: false,
+            world_from_tag: None,
+            used: false,
+            reason: String::new(),
+        };
+        if d.id != tag.id {
+            det.reason = format!("tag id {} is not the declared id {}", d.id, tag.id);
+            out.push((det, camera));
+            continue;
+        }
+        let side = shortest_side_px(&d.corners_px);
+        let mut pose = match estimate_tag_pose(&d.corners_px, intrinsics, tag.size_m) {
+            Ok(p) => p,
+            Err(e) => {
+                det.reason = format!("no pose: {e}");
+                out.push((det, camera));
+                continue;
+            }
+        };
+        if score_depth(&pose, &d.corners_px, intrinsics, view.points_camera).prefers_second() {
+            pose = pose.swapped();
+            det.flipped_by_depth = true;
+        }
+        det.rmse_px = pose.best.rmse_px;
+        det.world_from_tag = Some(view.world_from_camera * pose.best.camera_from_tag);
+        if side < params.min_side_px {
+            det.reason = format!("tag too small in the image ({side:.1} px < {} px)", params.min_side_px);
+        } else if det.rmse_px > params.max_rmse_px {
+            det.reason = format!("reprojection RMSE {:.2} px > {} px", det.rmse_px, params.max_rmse_px);
+        } else {
+            det.used = true;
+        }
+        out.push((det, camera));
+    }
+    Ok(out)
+}
+
+/// Estimates `T_world_tag` from in-memory views (see the module docs). Views that do not see the
+/// tag are not errors: the estimate is None and a warning names the views searched.
+///
+/// # Errors
+/// [`Error::Invalid`] for an unsupported tag spec or when the detector cannot run.
+pub fn estimate_from_views(
+    views: &[TagView<'_>],
+    intrinsics: &Intrinsics,
+    tag: &TagSpec,
+    params: &TagEstimateParams,
+) -> Result<TagEstimate> {
+    check_tag_spec(tag)?;
+    let mut detector = AprilTagDetector::new(&params.detector)?;
+    let mut detections: Vec<(ViewTagDetection, Point3<f64>)> = Vec::new();
+    for view in views {
+        detections.extend(detect_view(&mut detector, view, intrinsics, tag, params)?);
+    }
+    let views_checked: Vec<usize> = views.iter().map(|v| v.index).collect();
+    finish(detections, views_checked, tag, params)
+}
+
+fn finish(
+    found: Vec<(ViewTagDetection, Point3<f64>)>,
+    views_checked: Vec<usize>,
+    tag: &TagSpec,
+    params: &TagEstimateParams,
+) -> Result<TagEstimate> {
+    let (mut detections, cameras): (Vec<ViewTagDetection>, Vec<Point3<f64>>) = found.into_iter().unzip();
+    let mut warnings = Vec::new();
+    let candidates: Vec<usize> = (0..detections.len()).filter(|&i| detections[i].used).collect();
+    let poses: Vec<Isometry3<f64>> = candidates.iter().filter_map(|&i| detections[i].world_from_tag).collect();
+    let mut world_from_tag = None;
+    if poses.is_empty() {
+        let seen: Vec<String> = detections.iter().map(|d| format!("view {}: {}", d.view, d.reason)).collect();
+        let list: Vec<String> = views_checked.iter().map(usize::to_string).collect();
+        let detail = if seen.is_empty() { String::new() } else { format!(" ({})", seen.join("; ")) };
+        warnings.push(format!(
+            "tag {} id {} not found usably in any of the views checked [{}]{detail}: no T_world_tag",
+            tag.family,
+            tag.id,
+            list.join(", ")
+        ));
+    } else {
+        let mean = robust_mean(&poses, &params.mean)?;
+        for (k, &i) in candidates.iter().enumerate() {
+            if let Some(reason) = &mean.rejected[k] {
+                detections[i].used = false;
+                detections[i].reason = reason.clone();
+            }
+        }
+        world_from_tag = Some(mean.mean);
+        if mean.used < 2 {
+            warnings.push(format!("T_world_tag rests on a single view (view {})", detections[candidates[0]].view));
+        }
+    }
+    let sightings = detections
+        .iter()
+        .zip(&cameras)
+        .filter_map(|(d, c)| {
+            let t = d.world_from_tag.filter(|_| d.used)?;
+            Some(Sighting { view: d.view, camera: *c, tag_origin: Point3::from(t.translation.vector) })
+        })
+        .collect();
+    Ok(TagEstimate { world_from_tag, views_checked, detections, sightings, warnings })
+}
+
+/// Estimates `T_world_tag` from the views of `scan` that have a color image and a registered pose
+/// (`world_from_camera[i]`, e.g. [`crate::pipeline::FuseOutput::poses`]); loads each view.
+///
+/// # Errors
+/// [`Error::Invalid`] when the scan declares no tag or an unsupported one, or `world_from_camera`
+/// does not have one entry per view; any error of loading a view.
+pub fn estimate_world_from_tag(
+    scan: &Scan,
+    world_from_camera: &[Option<Isometry3<f64>>],
+    params: &TagEstimateParams,
+) -> Result<TagEstimate> {
+    let tag = scan.tag.as_ref().ok_or_else(|| Error::invalid("scan.json tag", "the scan declares no tag"))?;
+    check_tag_spec(tag)?;
+    if world_from_camera.len() != scan.views.len() {
+        return Err(Error::invalid(
+            "view poses",
+            format!("{} poses for {} views", world_from_camera.len(), scan.views.len()),
+        ));
+    }
+    let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
+    let rays = camera.intrinsics.ray_table();
+    let mut detector = AprilTagDetector::new(&params.detector)?;
+    let (mut detections, mut views_checked): (Vec<(ViewTagDetection, Point3<f64>)>, _) = (Vec::new(), Vec::new());
+    for (index, pose) in world_from_camera.iter().enumerate() {
+        let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
+        let Some(world_from_camera) = pose else { continue };
+        if !has_color {
+            continue;
+        }
+        let loaded = load_view(scan, index, Some(&rays))?;
+        let Some(image) = loaded.color.as_ref() else { continue };
+        views_checked.push(index);
+        let view =
+            TagView { index, image, points_camera: &loaded.cloud_camera.points, world_from_camera: *world_from_camera };
+        detections.extend(detect_view(&mut detector, &view, &camera.intrinsics, tag, params)?);
+    }
+    finish(detections, views_checked, tag, params)
+}

@@ -1,0 +1,224 @@
+//! Issue 5: the tag pose from the views of a scan with their TRUE poses (the independent simulator's
+//! scans in `shared/data/sim_reference` and awl's own), tags not visible or of another id, targets
+//! on an exact plate, and workpiece.json errors. The same on fused models: tests/fuse_reference.rs
+//! and tests/fuse_sim.rs (which fuse each scan once).
+//!
+//! Run: `cargo test --release -p awl --test workpiece -- --nocapture` (prints every measurement).
+
+mod common;
+
+use awl::Error;
+use awl::cloud::PointCloud;
+use awl::filter::voxel::{VoxelParams, downsample};
+use awl::io::scan::{Scan, TagSpec, load_view, read_scan};
+use awl::io::truth::{Truth, read_truth};
+use awl::io::workpiece::read_workpiece;
+use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
+use awl::workpiece::{
+    RefineParams, SurfaceModel, TagEstimate, TagEstimateParams, TagView, TargetParams, TargetSpec, estimate_from_views,
+    refine_on_model,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// A scan with its truth.
+struct Case {
+    name: String,
+    scan: Scan,
+    truth: Truth,
+    _dir: Option<tempfile::TempDir>,
+}
+
+fn reference(folder: &str) -> Case {
+    let dir = common::shared_data().join("sim_reference").join(folder);
+    let scan = read_scan(&dir).unwrap_or_else(|e| panic!("{e}"));
+    let truth = read_truth(&dir).unwrap_or_else(|e| panic!("{e}"));
+    Case { name: format!("reference {folder}"), scan, truth, _dir: None }
+}
+
+fn own(scene: SceneKind) -> Case {
+    let sim = simulate(&SimParams::scan(scene)).expect("simulate");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("scan");
+    write_simulation(&path, &sim, false).expect("write");
+    let scan = read_scan(&path).expect("read");
+    Case { name: format!("awl-sim {scene:?} seed 1"), scan, truth: sim.truth, _dir: Some(dir) }
+}
+
+/// (origin distance mm, z-axis angle deg, full rotation angle deg).
+fn tag_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64, f64) {
+    let centre_mm = (estimate.translation.vector - truth.translation.vector).norm() * 1e3;
+    let z_deg = (estimate.rotation * Vector3::z()).angle(&(truth.rotation * Vector3::z())).to_degrees();
+    (centre_mm, z_deg, estimate.rotation.angle_to(&truth.rotation).to_degrees())
+}
+
+/// Tag estimate from the views with their TRUE poses, and the same refined on the views' merged
+/// depth points (true poses, 2 mm voxels).
+fn tag_from_true_poses(case: &Case, tag: &TagSpec) -> (TagEstimate, Option<Isometry3<f64>>) {
+    let camera = case.scan.camera.expect("camera");
+    let rays = camera.intrinsics.ray_table();
+    let loaded: Vec<_> =
+        (0..case.scan.views.len()).map(|i| load_view(&case.scan, i, Some(&rays)).expect("view")).collect();
+    let views: Vec<TagView<'_>> = loaded
+        .iter()
+        .enumerate()
+        .filter_map(|(i, l)| {
+            let image = l.color.as_ref()?;
+            let world_from_camera = case.truth.views[i].world_from_camera;
+            Some(TagView { index: i, image, points_camera: &l.cloud_camera.points, world_from_camera })
+        })
+        .collect();
+    let estimate =
+        estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default()).expect("estimate");
+    let mut merged = PointCloud::default();
+    for (i, l) in loaded.iter().enumerate() {
+        merged.extend(&l.cloud_camera.transformed(&case.truth.views[i].world_from_camera));
+    }
+    let merged = downsample(&merged, &VoxelParams { voxel_size_m: 0.002 }).expect("voxel");
+    let refined = estimate.world_from_tag.map(|t| {
+        let r =
+            refine_on_model(&t, tag.size_m, &merged, &estimate.sightings, &RefineParams::default()).expect("refine");
+        println!("{}: model plane in the tag square {:.3} deg from the detected z", case.name, r.tilt_rad.to_degrees());
+        assert!(r.applied, "{}: refinement refused: {}", case.name, r.note);
+        r.world_from_tag
+    });
+    (estimate, refined)
+}
+
+fn check_true_pose_tag(case: &Case, max_mm: f64, max_deg: f64) {
+    let tag = case.scan.tag.clone().expect("tag");
+    let truth = case.truth.world_from_tag.expect("T_world_tag");
+    let (estimate, refined) = tag_from_true_poses(case, &tag);
+    let used: Vec<usize> = estimate.detections.iter().filter(|d| d.used).map(|d| d.view).collect();
+    let detected = estimate.world_from_tag.unwrap_or_else(|| panic!("{}: no tag: {:?}", case.name, estimate.warnings));
+    let per_view: Vec<String> = estimate
+        .detections
+        .iter()
+        .filter_map(|d| d.world_from_tag.map(|t| (d, tag_error(&t, &truth))))
+        .map(|(d, e)| format!("v{} {:.2}mm/{:.2}deg{}", d.view, e.0, e.2, if d.used { "" } else { " rejected" }))
+        .collect();
+    let (dc, dz, dr) = tag_error(&detected, &truth);
+    let (rc, rz, rr) = tag_error(&refined.expect("refined"), &truth);
+    println!(
+        "{} (true poses): views used {used:?}; per view [{}]; mean {dc:.2} mm, z {dz:.3} deg, rot {dr:.3} deg; \
+         refined on points {rc:.2} mm, z {rz:.3} deg, rot {rr:.3} deg",
+        case.name,
+        per_view.join(", ")
+    );
+    assert!(used.len() >= 2, "{}: {used:?}", case.name);
+    assert!(rc <= max_mm && rr <= max_deg, "{}: refined {rc:.2} mm {rr:.3} deg", case.name);
+}
+
+#[test]
+fn tag_from_true_poses_reference_box() {
+    check_true_pose_tag(&reference("box_seed1"), 1.5, 0.5);
+}
+
+#[test]
+fn tag_from_true_poses_reference_shell() {
+    check_true_pose_tag(&reference("shell_seed1"), 3.5, 0.5);
+}
+
+#[test]
+fn tag_from_true_poses_own_box_and_shell() {
+    check_true_pose_tag(&own(SceneKind::Box), 1.0, 0.5);
+    check_true_pose_tag(&own(SceneKind::Shell), 2.5, 1.5);
+}
+
+#[test]
+fn tag_not_visible_and_wrong_id_are_warnings_and_bad_family_an_error() {
+    let case = reference("box_seed1");
+    let camera = case.scan.camera.expect("camera");
+    let tag = case.scan.tag.clone().expect("tag");
+    let load = |i: usize| load_view(&case.scan, i, None).expect("view");
+    let run = |indices: &[usize], tag: &TagSpec| {
+        let loaded: Vec<_> = indices.iter().map(|&i| (i, load(i))).collect();
+        let views: Vec<TagView<'_>> = loaded
+            .iter()
+            .map(|(i, l)| TagView {
+                index: *i,
+                image: l.color.as_ref().expect("color"),
+                points_camera: &l.cloud_camera.points,
+                world_from_camera: case.truth.views[*i].world_from_camera,
+            })
+            .collect();
+        estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default())
+    };
+    // views 5, 6, 7 do not see the tag (truth: tag_visible false)
+    let none = run(&[5, 6, 7], &tag).expect("no error");
+    assert!(none.world_from_tag.is_none() && none.detections.is_empty());
+    assert!(none.warnings.iter().any(|w| w.contains("[5, 6, 7]")), "{:?}", none.warnings);
+    // views 0 and 1 see tag 0; the scan claims tag 7
+    let wrong = TagSpec { id: 7, ..tag.clone() };
+    let other = run(&[0, 1], &wrong).expect("no error");
+    assert!(other.world_from_tag.is_none());
+    assert!(!other.detections.is_empty() && other.detections.iter().all(|d| d.id == 0 && !d.used));
+    assert!(other.detections[0].reason.contains("not the declared id 7"), "{:?}", other.detections[0]);
+    assert!(other.warnings.iter().any(|w| w.contains("[0, 1]") && w.contains("id 7")), "{:?}", other.warnings);
+    let family = TagSpec { family: "tag25h9".into(), ..tag };
+    let e = run(&[0], &family).expect_err("unsupported family");
+    assert!(matches!(&e, Error::Invalid { what, .. } if what == "tag.family"), "{e}");
+}
+
+/// A 0.4 x 0.3 m rectangle (2 mm grid) in a tilted plane with outward normals, and a point 5 cm above it.
+fn plate() -> (PointCloud, Isometry3<f64>) {
+    let world_from_plate = Isometry3::new(Vector3::new(0.3, -0.1, 0.2), Vector3::new(0.3, -0.2, 0.5));
+    let mut cloud = PointCloud::default();
+    for i in 0..=200 {
+        for j in 0..=150 {
+            let p = Point3::new(-0.2 + i as f64 * 0.002, -0.15 + j as f64 * 0.002, 0.0);
+            cloud.points.push((world_from_plate * p).cast::<f32>());
+        }
+    }
+    let n = (world_from_plate.rotation * Vector3::z()).cast::<f32>();
+    cloud.normals = Some(vec![n; cloud.points.len()]);
+    (cloud, world_from_plate)
+}
+
+#[test]
+fn face_centre_and_snap_on_an_exact_plate_and_far_targets_are_errors() {
+    let (cloud, world_from_plate) = plate();
+    let surface = SurfaceModel::new(&cloud).expect("surface");
+    let params = TargetParams::default();
+    let pick = world_from_plate * Point3::new(0.12, -0.08, 0.006);
+    let face = surface.face_centre(&pick, &params).expect("face");
+    let centre_err = (face.point - world_from_plate * Point3::origin()).norm();
+    let normal = world_from_plate.rotation * Vector3::z();
+    assert!(centre_err < 1e-6, "centre {centre_err}");
+    assert!(face.normal.angle(&normal) < 1e-6, "normal {:?}", face.normal);
+    let snapped = surface.snap(&pick, &params).expect("snap");
+    let expected = world_from_plate * Point3::new(0.12, -0.08, 0.0);
+    assert!((snapped.point - expected).norm() < 1e-6, "snap {:?}", snapped.point);
+    let tag = world_from_plate * Isometry3::rotation(Vector3::new(0.1, 0.0, 0.0));
+    let placed = surface.place(&TargetSpec::Point(pick), &params, Some(&tag)).expect("place");
+    assert!((placed.angle_to_tag_z_rad.expect("angle") - 0.1).abs() < 1e-6);
+    let far = world_from_plate * Point3::new(0.0, 0.0, 0.05);
+    for spec in [TargetSpec::Point(far), TargetSpec::FaceCentre(far)] {
+        let e = surface.place(&spec, &params, None).expect_err("far");
+        assert!(matches!(&e, Error::Invalid { message, .. } if message.contains("50.0 mm")), "{e}");
+    }
+}
+
+#[test]
+fn workpiece_file_errors_name_the_file_and_field() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("workpiece.json");
+    let good = r#"{"format": "awl-workpiece/1", "model": "model.ply", "T_world_tag": [[1,0,0,0.1],[0,1,0,0],[0,0,1,0],[0,0,0,1]],
+        "tag": {"family": "tag36h11", "id": 0, "size": 0.1}}"#;
+    std::fs::write(&path, good).expect("write");
+    let wp = read_workpiece(&path).expect("minimal file");
+    assert!((wp.world_from_tag.expect("pose").translation.x - 0.1).abs() < 1e-15);
+    let cases = [
+        (good.replace("awl-workpiece/1", "awl-workpiece/9"), "format"),
+        (good.replace("[1,0,0,0.1]", "[2,0,0,0.1]"), "T_world_tag"),
+        (good.replace("\"size\": 0.1", "\"size\": -1"), "tag.size"),
+    ];
+    for (text, field) in cases {
+        std::fs::write(&path, text).expect("write");
+        let e = read_workpiece(&path).expect_err(field);
+        assert!(matches!(&e, Error::Field { field: f, path: p, .. } if f == field && p == &path), "{e}");
+    }
+    let no_tag = good.replace("[[1,0,0,0.1],[0,1,0,0],[0,0,1,0],[0,0,0,1]]", "null");
+    std::fs::write(&path, no_tag).expect("write");
+    let e = read_workpiece(&path).expect("null pose").require_world_from_tag(&path).expect_err("missing");
+    assert!(e.to_string().contains("T_world_tag"), "{e}");
+}
