@@ -76,35 +76,25 @@ fn refuses_to_overwrite_its_input_and_names_bad_poses() {
     assert!(!out.status.success() && text(&out).contains("refusing to overwrite"), "{}", text(&out));
     assert_eq!(std::fs::read(&poses).expect("read"), before, "the input must be untouched");
 
+    let bad = dir.path().join("bad.json");
+    let out_path = dir.path().join("out.json");
+    // calibrates from `doc` written as the poses file: (success, output text)
+    let calibrate = |doc: &serde_json::Value| {
+        std::fs::write(&bad, doc.to_string()).expect("write");
+        let (b, o) = (bad.to_str().expect("utf-8"), out_path.to_str().expect("utf-8"));
+        let out = awl(&["calibrate", "hand-eye", "--poses", b, "-o", o]);
+        (out.status.success(), text(&out))
+    };
+
     let mut doc = read_json(&poses);
     doc["poses"][2]["T_base_ee"][0][0] = serde_json::json!(2.0);
-    let bad = dir.path().join("bad.json");
-    std::fs::write(&bad, doc.to_string()).expect("write");
-    let out_path = dir.path().join("out.json");
-    let out = awl(&[
-        "calibrate",
-        "hand-eye",
-        "--poses",
-        bad.to_str().expect("utf-8"),
-        "-o",
-        out_path.to_str().expect("utf-8"),
-    ]);
-    let t = text(&out);
-    assert!(!out.status.success() && t.contains("poses[2].T_base_ee") && t.contains("orthonormal"), "{t}");
+    let (success, t) = calibrate(&doc);
+    assert!(!success && t.contains("poses[2].T_base_ee") && t.contains("orthonormal"), "{t}");
     assert!(!out_path.exists(), "no output on failure");
 
     let mut doc = read_json(&poses);
     doc["poses"].as_array_mut().expect("array").truncate(2);
-    std::fs::write(&bad, doc.to_string()).expect("write");
-    let out = awl(&[
-        "calibrate",
-        "hand-eye",
-        "--poses",
-        bad.to_str().expect("utf-8"),
-        "-o",
-        out_path.to_str().expect("utf-8"),
-    ]);
-    let t = text(&out);
-    assert!(!out.status.success() && t.contains("at least 3 poses, got 2"), "{t}");
+    let (success, t) = calibrate(&doc);
+    assert!(!success && t.contains("at least 3 poses, got 2"), "{t}");
     println!("{t}");
 }

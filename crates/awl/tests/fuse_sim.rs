@@ -14,6 +14,7 @@ use awl::pierce::{LocateParams, PierceParams};
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, Simulation, simulate, write_simulation};
 use awl::trial::{ShotSetup, TrialSummary, TrialWorkpiece, calibrate_rig, format_table, prepare_workpiece, run_shot};
+use awl::workpiece::{WorkpieceParams, workpiece_from_fuse};
 use common::{Outcome, TruthScene, assert_acceptance, evaluate};
 use nalgebra::Isometry3;
 
@@ -124,7 +125,10 @@ fn trials(scene: SceneKind, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f6
     let f = seed1(scene);
     let cell = if scene == SceneKind::Box { &BOX_WORKPIECE } else { &SHELL_WORKPIECE };
     let wp = cell.get_or_init(|| {
-        prepare_workpiece(scene, &f.scan, &f.sim.truth, &f.sim.cad, &f.out).unwrap_or_else(|e| panic!("{e}"))
+        let tag = workpiece_from_fuse(&f.scan, &f.out.poses, &f.out.model, "model.ply", &WorkpieceParams::default())
+            .expect("workpiece")
+            .expect("the scan declares a tag");
+        prepare_workpiece(scene, &tag, &f.sim.truth, &f.sim.cad, &f.out.model).unwrap_or_else(|e| panic!("{e}"))
     });
     let hand_eye = calibrate_rig(1, 20).expect("calibration");
     let setup = ShotSetup {

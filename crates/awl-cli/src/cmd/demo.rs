@@ -11,10 +11,10 @@ use awl::eval::{EvaluateParams, evaluate, trajectory_correction};
 use awl::io::mesh::read_mesh;
 use awl::io::scan::read_scan;
 use awl::io::truth::read_truth;
-use awl::pipeline::{FuseConfig, fuse};
+use awl::pipeline::FuseConfig;
 use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
 
-use super::common::{prepare_output, set_threads, stage_bar};
+use super::common::{prepare_output, set_threads};
 
 /// The simulated workpiece.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -84,14 +84,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     ));
 
     let scan = read_scan(&scan_dir)?;
-    let bar = stage_bar(args.quiet);
-    let progress = |stage: &str, done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(stage.to_string());
-    };
-    let fused = fuse(&scan, &FuseConfig::default(), &progress)?;
-    bar.finish_and_clear();
+    let fused = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
     say(format!(
         "[2/3] fused {} views into {} points in {:.2} s",
         fused.report.views.len(),
@@ -113,8 +106,8 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
-    let (fuse_html, workpiece_warnings) = super::fuse::write_outputs(&fuse_dir, &scan, &fused, Some(rmse_m))?;
-    for w in &workpiece_warnings {
+    let (fuse_html, workpiece) = super::fuse::write_outputs(&fuse_dir, &scan, &fused, Some(rmse_m))?;
+    for w in super::fuse::workpiece_warnings(workpiece.as_ref()) {
         say(format!("      warning: {w}"));
     }
     let model_path = fuse_dir.join("model.ply");

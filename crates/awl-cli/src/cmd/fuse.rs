@@ -9,7 +9,7 @@ use awl::io::scan::{Scan, read_scan};
 use awl::io::workpiece::write_workpiece;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::report_html::{PageParams, fuse_page};
-use awl::workpiece::{WORKPIECE_FILE, WorkpieceParams, workpiece_from_fuse};
+use awl::workpiece::{WORKPIECE_FILE, Workpiece, WorkpieceParams, workpiece_from_fuse};
 
 use super::common::{set_threads, stage_bar, write_json};
 
@@ -44,25 +44,41 @@ fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as
 /// `renders/*.png`) and, when the scan declares a tag, `workpiece.json` into `out_dir`, creating
 /// it; `rmse_m` (an RMSE against ground truth, when the caller has one) goes on the page.
-/// Returns the page's path and the workpiece's warnings.
+/// Returns the page's path and the workpiece (see [`workpiece_warnings`]).
 pub fn write_outputs(
     out_dir: &Path,
     scan: &Scan,
     out: &FuseOutput,
     rmse_m: Option<f64>,
-) -> anyhow::Result<(PathBuf, Vec<String>)> {
+) -> anyhow::Result<(PathBuf, Option<Workpiece>)> {
     // the tag on the model, for `awl pierce`: estimated before anything is written
     let workpiece = workpiece_from_fuse(scan, &out.poses, &out.model, "model.ply", &WorkpieceParams::default())?;
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
     write_cloud(&out_dir.join("model.ply"), &out.model)?;
     write_json(&out_dir.join("report.json"), &out.report)?;
-    let mut warnings = Vec::new();
     if let Some(wp) = &workpiece {
         write_workpiece(&out_dir.join(WORKPIECE_FILE), wp)?;
-        warnings.extend(wp.warnings.iter().map(|w| format!("workpiece: {w}")));
     }
     let page = fuse_page(&out.report, &out.model, rmse_m, &PageParams::default())?;
-    Ok((write_report(out_dir, &page.page, &page.renders)?, warnings))
+    Ok((write_report(out_dir, &page.page, &page.renders)?, workpiece))
+}
+
+/// The workpiece's warnings, each prefixed for the user.
+pub fn workpiece_warnings(workpiece: Option<&Workpiece>) -> Vec<String> {
+    workpiece.map_or_else(Vec::new, |wp| wp.warnings.iter().map(|w| format!("workpiece: {w}")).collect())
+}
+
+/// Runs the pipeline with a stage progress bar on stderr (hidden when `quiet`).
+pub fn fuse_with_progress(scan: &Scan, config: &FuseConfig, quiet: bool) -> anyhow::Result<FuseOutput> {
+    let bar = stage_bar(quiet);
+    let progress = |stage: &str, done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        bar.set_message(stage.to_string());
+    };
+    let out = fuse(scan, config, &progress)?;
+    bar.finish_and_clear();
+    Ok(out)
 }
 
 /// Runs `awl fuse`.
@@ -70,16 +86,9 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     let config = load_config(args.config.as_ref())?;
     let scan = read_scan(&args.scan)?;
-    let bar = stage_bar(args.quiet);
-    let progress = |stage: &str, done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(stage.to_string());
-    };
-    let out = fuse(&scan, &config, &progress)?;
-    bar.finish_and_clear();
+    let out = fuse_with_progress(&scan, &config, args.quiet)?;
     // the folder is made only once there is something to put in it
-    let (_, workpiece_warnings) = write_outputs(&args.output, &scan, &out, None)?;
+    let (_, workpiece) = write_outputs(&args.output, &scan, &out, None)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out.report)?);
     } else if !args.quiet {
@@ -94,7 +103,7 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
             r.model_points,
             r.seconds
         );
-        for w in r.warnings.iter().chain(&workpiece_warnings) {
+        for w in r.warnings.iter().chain(&workpiece_warnings(workpiece.as_ref())) {
             println!("warning: {w}");
         }
         println!("wrote {}", args.output.join("model.ply").display());

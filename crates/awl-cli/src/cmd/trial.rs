@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Context;
 use awl::io::scan::read_scan;
 use awl::pierce::{LocateParams, PierceParams};
-use awl::pipeline::{FuseConfig, fuse};
+use awl::pipeline::FuseConfig;
 use awl::sim::{SceneKind, ShotPose, SimParams, simulate, write_simulation};
 use awl::trial::{ShotSetup, TrialRow, TrialSummary, calibrate_rig, format_table, prepare_workpiece, run_shot};
 use serde_json::json;
@@ -90,16 +90,11 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     let scan_dir = args.output.join("scan");
     write_simulation(&scan_dir, &sim, args.force)?;
     let scan = read_scan(&scan_dir)?;
-    let bar = stage_bar(args.quiet);
-    let progress = |stage: &str, done: usize, total: usize| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(stage.to_string());
-    };
-    let fused = fuse(&scan, &FuseConfig::default(), &progress)?;
-    bar.finish_and_clear();
-    super::fuse::write_outputs(&args.output.join("fuse"), &scan, &fused, None)?;
-    let wp = prepare_workpiece(scene, &scan, &sim.truth, &sim.cad, &fused).context("the workpiece on the model")?;
+    let fused = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    let (_, workpiece) = super::fuse::write_outputs(&args.output.join("fuse"), &scan, &fused, None)?;
+    let workpiece = workpiece.context("the simulated scan declares no tag")?;
+    let wp = prepare_workpiece(scene, &workpiece, &sim.truth, &sim.cad, &fused.model)
+        .context("the workpiece on the model")?;
     say(format!(
         "[2/3] scanned and fused the {} ({} views, {} points, {:.1} s); target `{}` picked as {}",
         scene.name(),

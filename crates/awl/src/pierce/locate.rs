@@ -19,11 +19,10 @@ use serde::{Deserialize, Serialize};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
-use crate::io::scan::{Scan, TagSpec, load_view};
+use crate::io::scan::{LoadedView, Scan, TagSpec, load_view};
 use crate::registration::{IcpLevel, IcpParams, register};
-use crate::spatial::KdIndex;
 use crate::transform::pose_difference;
-use crate::workpiece::{TagEstimateParams, ViewTagDetection, estimate_world_from_tag};
+use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views};
 
 /// Parameters of the shot-depth refinement.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -136,7 +135,7 @@ pub fn locate(
     shot: &Scan,
     tag: &TagSpec,
     world_from_tag: &Isometry3<f64>,
-    model: &PointCloud,
+    model: &SurfaceModel<'_>,
     params: &LocateParams,
 ) -> Result<Located> {
     if let Some(declared) = &shot.tag {
@@ -150,14 +149,28 @@ pub fn locate(
             ));
         }
     }
-    let mut shot_with_tag = shot.clone();
-    shot_with_tag.tag = Some(tag.clone());
-    let poses: Vec<Option<Isometry3<f64>>> =
-        (0..shot.views.len()).map(|i| shot.world_from_camera(i).map(Some)).collect::<Result<_>>()?;
-    let estimate = estimate_world_from_tag(&shot_with_tag, &poses, &params.tag)?;
-    if estimate.views_checked.is_empty() {
-        return Err(shot_error(shot, "no view has a color image: the tag cannot be detected"));
-    }
+    // every view is decoded once: its color for the tag, its points for the refinement
+    let rays = shot.camera.as_ref().map(|c| c.intrinsics.ray_table());
+    let loaded: Vec<LoadedView> =
+        (0..shot.views.len()).map(|i| load_view(shot, i, rays.as_deref())).collect::<Result<_>>()?;
+    let views: Vec<TagView<'_>> = loaded
+        .iter()
+        .enumerate()
+        .filter_map(|(index, l)| {
+            let image = l.color.as_ref()?;
+            Some(TagView {
+                index,
+                image,
+                points_camera: &l.cloud_camera.points,
+                world_from_camera: l.world_from_camera,
+            })
+        })
+        .collect();
+    let camera = match &shot.camera {
+        Some(camera) if !views.is_empty() => camera,
+        _ => return Err(shot_error(shot, "no view has a color image: the tag cannot be detected")),
+    };
+    let estimate = estimate_from_views(&views, &camera.intrinsics, tag, &params.tag)?;
     let Some(base_from_tag) = estimate.world_from_tag else {
         let checked: Vec<String> = estimate.views_checked.iter().map(usize::to_string).collect();
         let seen: Vec<String> = estimate.detections.iter().map(|d| format!("view {}: {}", d.view, d.reason)).collect();
@@ -175,10 +188,9 @@ pub fn locate(
     let base_from_model_tag = base_from_tag * world_from_tag.inverse();
     let mut warnings = estimate.warnings;
     let mut base_from_model = base_from_model_tag;
-    let has_depth = shot.camera.is_some();
-    let refinement = match (&params.refine, has_depth) {
-        (Some(p), true) => {
-            let r = refine_with_depth(shot, model, &base_from_model_tag, world_from_tag, p)?;
+    let refinement = match &params.refine {
+        Some(p) => {
+            let r = refine_with_depth(&loaded, model, &base_from_model_tag, world_from_tag, p)?;
             if r.applied {
                 base_from_model = r.base_from_model;
             } else {
@@ -186,7 +198,7 @@ pub fn locate(
             }
             Some(r)
         }
-        _ => None,
+        None => None,
     };
     Ok(Located {
         base_from_tag,
@@ -200,31 +212,28 @@ pub fn locate(
 }
 
 /// The shot's points (base frame), merged and voxelised.
-fn shot_points(shot: &Scan, voxel_m: f64) -> Result<PointCloud> {
-    let rays = shot.camera.as_ref().map(|c| c.intrinsics.ray_table());
+fn shot_points(views: &[LoadedView], voxel_m: f64) -> Result<PointCloud> {
     let mut merged = PointCloud::default();
-    for i in 0..shot.views.len() {
-        let view = load_view(shot, i, rays.as_deref())?;
+    for view in views {
         merged.extend(&view.cloud_camera.transformed(&view.world_from_camera));
     }
     downsample(&merged, &VoxelParams { voxel_size_m: voxel_m })
 }
 
 fn refine_with_depth(
-    shot: &Scan,
-    model: &PointCloud,
+    views: &[LoadedView],
+    model: &SurfaceModel<'_>,
     seed: &Isometry3<f64>,
     world_from_tag: &Isometry3<f64>,
     params: &ShotRefineParams,
 ) -> Result<ShotRefinement> {
-    let points = shot_points(shot, params.voxel_m)?;
-    let index = KdIndex::new(&model.points)?;
+    let points = shot_points(views, params.voxel_m)?;
     let model_from_base = seed.inverse();
     let crop = (params.crop_m * params.crop_m) as f32;
     let keep: Vec<usize> = (0..points.len())
         .filter(|&i| {
             let q = (model_from_base * points.points[i].cast::<f64>()).cast::<f32>();
-            index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
+            model.index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
         })
         .collect();
     let source = points.select(&keep);
@@ -242,7 +251,7 @@ fn refine_with_depth(
         r.note = format!("{} shot points near the model, fewer than {}", source.len(), params.min_points);
         return Ok(r);
     }
-    let icp = register(&source, model, &model_from_base, &params.icp)?;
+    let icp = register(&source, model.cloud, &model_from_base, &params.icp)?;
     r.base_from_model = icp.target_from_source.inverse();
     r.fitness = icp.fitness;
     r.rmse_m = icp.inlier_rmse_m;

@@ -97,7 +97,7 @@ pub fn plan(
     let surface = SurfaceModel::new(model)?;
     let placed: Vec<SurfaceTarget> =
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
-    let located = locate(shot, tag, world_from_tag, model, &params.locate)?;
+    let located = locate(shot, tag, world_from_tag, &surface, &params.locate)?;
     let mut warnings = located.warnings.clone();
     let base_from_model = located.base_from_model;
     let tag_axis = -((base_from_model * world_from_tag).rotation * Vector3::z());

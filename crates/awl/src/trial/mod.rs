@@ -23,15 +23,14 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::eval::{EvaluateParams, evaluate};
 use crate::handeye::{HandEyeParams, calibrate};
-use crate::io::scan::{Scan, TagSpec, read_scan};
+use crate::io::scan::{TagSpec, read_scan};
 use crate::io::truth::{Truth, TruthTarget};
 use crate::mesh::TriMesh;
 use crate::pierce::{PierceParams, plan};
-use crate::pipeline::FuseOutput;
 use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use crate::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
 use crate::transform::pose_difference;
-use crate::workpiece::{TargetSpec, WorkpieceParams, workpiece_from_fuse};
+use crate::workpiece::{TargetSpec, Workpiece};
 
 pub use table::{TrialSummary, format_table};
 
@@ -96,28 +95,26 @@ pub fn pick_target(scene: SceneKind, target: &TruthTarget, object_from_model: &I
     }
 }
 
-/// The tag on the fused model and the target on it (module docs).
+/// The target on the fused `model` whose tag `wp` gives ([`crate::workpiece::workpiece_from_fuse`]; module docs).
 ///
 /// # Errors
-/// [`Error::Invalid`] when the scan has no tag or no view sees it, or the truth no target; any
-/// error of the alignment onto the CAD.
+/// [`Error::Invalid`] when no view saw the tag, or the truth has no target; any error of the
+/// alignment onto the CAD.
 pub fn prepare_workpiece(
     scene: SceneKind,
-    scan: &Scan,
+    wp: &Workpiece,
     truth: &Truth,
     cad: &TriMesh,
-    fused: &FuseOutput,
+    model: &PointCloud,
 ) -> Result<TrialWorkpiece> {
-    let wp = workpiece_from_fuse(scan, &fused.poses, &fused.model, "model.ply", &WorkpieceParams::default())?
-        .ok_or_else(|| Error::invalid("scan", "declares no tag"))?;
     let world_from_tag = wp
         .world_from_tag
         .ok_or_else(|| Error::invalid("workpiece", format!("no tag pose: {}", wp.warnings.join("; "))))?;
     let target = truth.targets.first().cloned().ok_or_else(|| Error::invalid("truth.json targets", "none"))?;
     let start = truth.world_from_object.inverse();
-    let object_from_model = evaluate(&fused.model, cad, Some(&start), &EvaluateParams::default())?.object_from_model;
+    let object_from_model = evaluate(model, cad, Some(&start), &EvaluateParams::default())?.object_from_model;
     let spec = pick_target(scene, &target, &object_from_model);
-    Ok(TrialWorkpiece { model: fused.model.clone(), tag: wp.tag, world_from_tag, object_from_model, target, spec })
+    Ok(TrialWorkpiece { model: model.clone(), tag: wp.tag.clone(), world_from_tag, object_from_model, target, spec })
 }
 
 /// One trial's outcome, robot base frame.
