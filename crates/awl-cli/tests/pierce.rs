@@ -12,7 +12,7 @@ use awl::io::scan::read_scan;
 use awl::io::truth::read_truth;
 use awl::io::workpiece::write_workpiece;
 use awl::transform::{Rows, isometry_from_rows, rows_from_isometry};
-use awl::workpiece::Workpiece;
+use awl::workpiece::{FloorPlane, Workpiece};
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
 fn awl(args: &[&str]) -> Output {
@@ -68,6 +68,8 @@ fn setup(tag_id: u32) -> Setup {
         views_checked: Vec::new(),
         detections: Vec::new(),
         refinement: None,
+        // the CAD's footprint is at z = 0 in its frame: the floor a fused model would record
+        floor: FloorPlane::new(Vector3::z(), 0.0),
         warnings: Vec::new(),
     };
     let workpiece = dir.path().join("workpiece.json");

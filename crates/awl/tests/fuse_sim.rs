@@ -125,7 +125,7 @@ fn trials(scene: SceneKind, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f6
     let f = seed1(scene);
     let cell = if scene == SceneKind::Box { &BOX_WORKPIECE } else { &SHELL_WORKPIECE };
     let wp = cell.get_or_init(|| {
-        let tag = workpiece_from_fuse(&f.scan, &f.out.poses, &f.out.model, "model.ply", &WorkpieceParams::default())
+        let tag = workpiece_from_fuse(&f.scan, &f.out, "model.ply", &WorkpieceParams::default())
             .expect("workpiece")
             .expect("the scan declares a tag");
         prepare_workpiece(scene, &tag, &f.sim.truth, &f.sim.cad, &f.out.model).unwrap_or_else(|e| panic!("{e}"))

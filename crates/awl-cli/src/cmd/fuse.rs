@@ -52,7 +52,7 @@ pub fn write_outputs(
     rmse_m: Option<f64>,
 ) -> anyhow::Result<(PathBuf, Option<Workpiece>)> {
     // the tag on the model, for `awl pierce`: estimated before anything is written
-    let workpiece = workpiece_from_fuse(scan, &out.poses, &out.model, "model.ply", &WorkpieceParams::default())?;
+    let workpiece = workpiece_from_fuse(scan, out, "model.ply", &WorkpieceParams::default())?;
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
     write_cloud(&out_dir.join("model.ply"), &out.model)?;
     write_json(&out_dir.join("report.json"), &out.report)?;

@@ -10,6 +10,7 @@ use awl::io::plan::{PlanSources, plan_json, write_plan};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
 use awl::pierce::{AxisChoice, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, urscript};
+use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
 
 use super::common::refuse_overwriting_inputs;
@@ -116,7 +117,8 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
         ..PierceParams::default()
     };
-    let plan = plan(&model, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
+    let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
+    let plan = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
     let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
     // everything is computed before the first file is written
     let script = args

@@ -10,6 +10,7 @@
 //!                     "flipped_by_depth": false, "T_world_tag": [[...]] | null, "used": true, "reason": "" } ],
 //!   "refinement": { "applied": true, "points": 812, "rms_m": 0.0004, "tilt_rad": 0.003, "shift_m": 0.0008,
 //!                   "note": "", "T_world_tag": [[...]] } | null,
+//!   "floor": { "normal": [nx, ny, nz], "offset_m": d } | null,
 //!   "warnings": [] }
 //! ```
 
@@ -21,7 +22,7 @@ use crate::error::{Error, Result};
 use crate::io::scan::{TagSpec, parse_json, pose_field};
 use crate::io::{read_bytes, write_atomic};
 use crate::transform::{Rows, rows_from_isometry};
-use crate::workpiece::file::{WORKPIECE_FORMAT, Workpiece};
+use crate::workpiece::file::{FloorPlane, WORKPIECE_FORMAT, Workpiece};
 use crate::workpiece::refine::Refinement;
 use crate::workpiece::tag_pose::ViewTagDetection;
 use crate::workpiece::target_spec::{TargetSpec, parse_targets};
@@ -54,6 +55,13 @@ struct RawRefinement {
 }
 
 #[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFloor {
+    normal: [f64; 3],
+    offset_m: f64,
+}
+
+#[derive(Serialize, Deserialize)]
 struct RawWorkpiece {
     format: String,
     model: String,
@@ -66,6 +74,8 @@ struct RawWorkpiece {
     detections: Vec<RawDetection>,
     #[serde(default)]
     refinement: Option<RawRefinement>,
+    #[serde(default)]
+    floor: Option<RawFloor>,
     #[serde(default)]
     warnings: Vec<String>,
 }
@@ -108,6 +118,7 @@ pub fn write_workpiece(path: &Path, workpiece: &Workpiece) -> Result<()> {
             note: r.note.clone(),
             world_tag: rows_from_isometry(&r.world_from_tag),
         }),
+        floor: workpiece.floor.map(|f| RawFloor { normal: f.normal.into(), offset_m: f.offset_m }),
         warnings: workpiece.warnings.clone(),
     };
     let text = serde_json::to_string_pretty(&raw).map_err(|e| Error::invalid("workpiece.json", e.to_string()))?;
@@ -164,6 +175,14 @@ pub fn read_workpiece(path: &Path) -> Result<Workpiece> {
             })
         })
         .transpose()?;
+    let floor = raw
+        .floor
+        .map(|f| {
+            FloorPlane::new(f.normal.into(), f.offset_m).ok_or_else(|| {
+                Error::field(path, "floor", "normal must be a non-zero finite vector and offset_m finite")
+            })
+        })
+        .transpose()?;
     Ok(Workpiece {
         model: raw.model,
         world_from_tag,
@@ -171,6 +190,7 @@ pub fn read_workpiece(path: &Path) -> Result<Workpiece> {
         views_checked: raw.views_checked,
         detections,
         refinement,
+        floor,
         warnings: raw.warnings,
     })
 }

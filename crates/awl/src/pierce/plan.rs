@@ -4,7 +4,6 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::io::scan::{Scan, TagSpec};
 use crate::pierce::locate::{LocateParams, Located, locate};
@@ -77,13 +76,13 @@ pub struct PiercePlan {
     pub warnings: Vec<String>,
 }
 
-/// Places `specs` on `model` (failing before any image is read when one is off the model), locates
-/// the model in the shot's base frame and plans the tool poses.
+/// Places `specs` on the model `surface` (failing before any image is read when one is off the
+/// model), locates the model in the shot's base frame and plans the tool poses.
 ///
 /// # Errors
 /// [`Error::Invalid`] for no target, a target off the model, or any error of [`locate`].
 pub fn plan(
-    model: &PointCloud,
+    surface: &SurfaceModel,
     tag: &TagSpec,
     world_from_tag: &Isometry3<f64>,
     shot: &Scan,
@@ -94,10 +93,9 @@ pub fn plan(
         return Err(Error::invalid("targets", "no target given"));
     }
     params.stroke.validate()?;
-    let surface = SurfaceModel::new(model)?;
     let placed: Vec<SurfaceTarget> =
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
-    let located = locate(shot, tag, world_from_tag, &surface, &params.locate)?;
+    let located = locate(shot, tag, world_from_tag, surface, &params.locate)?;
     let mut warnings = located.warnings.clone();
     let base_from_model = located.base_from_model;
     let tag_axis = -((base_from_model * world_from_tag).rotation * Vector3::z());

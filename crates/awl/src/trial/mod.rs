@@ -30,7 +30,7 @@ use crate::pierce::{PierceParams, plan};
 use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use crate::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
 use crate::transform::pose_difference;
-use crate::workpiece::{TargetSpec, Workpiece};
+use crate::workpiece::{FloorPlane, SurfaceModel, TargetSpec, Workpiece};
 
 pub use table::{TrialSummary, format_table};
 
@@ -79,6 +79,8 @@ pub struct TrialWorkpiece {
     pub target: TruthTarget,
     /// The target as the user gives it (model frame).
     pub spec: TargetSpec,
+    /// The floor fusion found (model frame).
+    pub floor: Option<FloorPlane>,
 }
 
 /// Picks the target a user would give for `target` on a model aligned by `object_from_model`.
@@ -114,7 +116,15 @@ pub fn prepare_workpiece(
     let start = truth.world_from_object.inverse();
     let object_from_model = evaluate(model, cad, Some(&start), &EvaluateParams::default())?.object_from_model;
     let spec = pick_target(scene, &target, &object_from_model);
-    Ok(TrialWorkpiece { model: model.clone(), tag: wp.tag.clone(), world_from_tag, object_from_model, target, spec })
+    Ok(TrialWorkpiece {
+        model: model.clone(),
+        tag: wp.tag.clone(),
+        world_from_tag,
+        object_from_model,
+        target,
+        spec,
+        floor: wp.floor,
+    })
 }
 
 /// One trial's outcome, robot base frame.
@@ -185,7 +195,8 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         (Some(p), Some(n)) => (p, n),
         _ => return Err(Error::invalid("shot truth", "the target has no p_world / n_world")),
     };
-    let planned = plan(&wp.model, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+    let surface = SurfaceModel::new(&wp.model)?.with_floor(wp.floor);
+    let planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
     let t = &planned.targets[0];
     Ok(TrialRow {
         trial: k,

@@ -2,12 +2,13 @@
 //! `awl-workpiece/1`, read and written by [`crate::io::workpiece`]): the model file, where the tag
 //! is on it (`T_world_tag`, world = the model's frame), the tag spec and every detection.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::io::scan::{Scan, TagSpec};
+use crate::pipeline::FuseOutput;
 use crate::workpiece::refine::{RefineParams, Refinement, refine_on_model};
 use crate::workpiece::tag_pose::{TagEstimateParams, ViewTagDetection, estimate_world_from_tag};
 
@@ -48,8 +49,33 @@ pub struct Workpiece {
     pub detections: Vec<ViewTagDetection>,
     /// The plane refinement on the model, when run.
     pub refinement: Option<Refinement>,
+    /// The floor the workpiece stood on while modeled (model frame), when fusion found one: faces
+    /// standing on it end there ([`crate::workpiece::face`]).
+    pub floor: Option<FloorPlane>,
     /// Warnings for the user.
     pub warnings: Vec<String>,
+}
+
+/// A plane `normal·p + offset_m = 0` (unit `normal`, pointing up for a floor), model frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FloorPlane {
+    /// Unit normal, up.
+    pub normal: Vector3<f64>,
+    /// `d` in `normal·p + d = 0`, metres.
+    pub offset_m: f64,
+}
+
+impl FloorPlane {
+    /// The plane from a normal of any length; `None` when it is zero or not finite.
+    pub fn new(normal: Vector3<f64>, offset_m: f64) -> Option<Self> {
+        let n = normal.norm();
+        (n.is_finite() && n > 1e-9 && offset_m.is_finite()).then(|| Self { normal: normal / n, offset_m: offset_m / n })
+    }
+
+    /// Signed height of `p` above the plane, metres.
+    pub fn height(&self, p: &nalgebra::Point3<f64>) -> f64 {
+        self.normal.dot(&p.coords) + self.offset_m
+    }
 }
 
 impl Workpiece {
@@ -65,7 +91,7 @@ impl Workpiece {
 }
 
 /// Builds the workpiece record of a fused scan: the tag seen from the views with their registered
-/// poses (`world_from_camera`, e.g. `FuseOutput::poses`), refined on `model`. `None` when the scan
+/// poses (`out.poses`), refined on the model, and the floor fusion removed. `None` when the scan
 /// declares no tag. A tag that no view sees is not an error: `world_from_tag` is None and a warning
 /// names the views checked.
 ///
@@ -73,13 +99,13 @@ impl Workpiece {
 /// [`Error::Invalid`] for an unsupported tag; any error of loading a view.
 pub fn workpiece_from_fuse(
     scan: &Scan,
-    world_from_camera: &[Option<Isometry3<f64>>],
-    model: &PointCloud,
+    out: &FuseOutput,
     model_file: &str,
     params: &WorkpieceParams,
 ) -> Result<Option<Workpiece>> {
     let Some(tag) = scan.tag.clone() else { return Ok(None) };
-    let estimate = estimate_world_from_tag(scan, world_from_camera, &params.tag)?;
+    let model: &PointCloud = &out.model;
+    let estimate = estimate_world_from_tag(scan, &out.poses, &params.tag)?;
     let mut warnings = estimate.warnings;
     let mut world_from_tag = estimate.world_from_tag;
     let mut refinement = None;
@@ -99,6 +125,7 @@ pub fn workpiece_from_fuse(
         views_checked: estimate.views_checked,
         detections: estimate.detections,
         refinement,
+        floor: out.report.floor.as_ref().and_then(|f| FloorPlane::new(Vector3::from(f.normal), f.offset_m)),
         warnings,
     }))
 }

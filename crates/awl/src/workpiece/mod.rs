@@ -20,7 +20,7 @@ pub mod target_spec;
 pub mod targets;
 
 pub use face::FaceParams;
-pub use file::{WORKPIECE_FILE, WORKPIECE_FORMAT, Workpiece, WorkpieceParams, workpiece_from_fuse};
+pub use file::{FloorPlane, WORKPIECE_FILE, WORKPIECE_FORMAT, Workpiece, WorkpieceParams, workpiece_from_fuse};
 pub use mean::{MeanParams, PoseMean, robust_mean};
 pub use refine::{RefineParams, Refinement, refine_on_model};
 pub use tag_pose::{

@@ -16,6 +16,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::spatial::KdIndex;
 use crate::workpiece::face::FaceParams;
+use crate::workpiece::file::FloorPlane;
 use crate::workpiece::target_spec::TargetSpec;
 
 /// Parameters of target placement.
@@ -74,6 +75,7 @@ pub struct SurfaceModel<'a> {
     pub(crate) cloud: &'a PointCloud,
     pub(crate) index: KdIndex,
     centroid: Point3<f64>,
+    pub(crate) floor: Option<FloorPlane>,
 }
 
 impl std::fmt::Debug for SurfaceModel<'_> {
@@ -102,7 +104,18 @@ impl<'a> SurfaceModel<'a> {
         let index = KdIndex::new(&model.points)?;
         let n = model.len() as f64;
         let centroid = Point3::from(model.points.iter().map(|p| p.coords.cast::<f64>()).sum::<Vector3<f64>>() / n);
-        Ok(Self { cloud: model, index, centroid })
+        Ok(Self { cloud: model, index, centroid, floor: None })
+    }
+
+    /// The floor the model stood on (e.g. [`crate::workpiece::Workpiece::floor`]): a face standing on
+    /// it ends there ([`SurfaceModel::face_centre`]).
+    pub fn with_floor(self, floor: Option<FloorPlane>) -> Self {
+        Self { floor, ..self }
+    }
+
+    /// The model.
+    pub fn cloud(&self) -> &PointCloud {
+        self.cloud
     }
 
     /// Places one target (see [`TargetSpec`]); with `world_from_tag`, also the angle to the tag's z.
