@@ -133,8 +133,7 @@ fn check_face_centre(f: &Fused, name: &str, max_mm: f64, max_deg: f64) {
     let TargetSpec::FaceCentre(pick) = pick_target(SceneKind::Box, target, &object_from_model) else {
         panic!("a box target is a face centre")
     };
-    let floor = f.out.report.floor.as_ref().and_then(|fl| FloorPlane::new(Vector3::from(fl.normal), fl.offset_m));
-    let surface = SurfaceModel::new(&f.out.model).expect("surface model").with_floor(floor);
+    let surface = SurfaceModel::new(&f.out.model).expect("surface model").with_floor(FloorPlane::of_fuse(&f.out));
     let placed = surface.place(&TargetSpec::FaceCentre(pick), &TargetParams::default(), None).expect("face centre");
     let p = object_from_model * placed.point;
     let n = object_from_model.rotation * placed.normal;
@@ -279,7 +278,7 @@ fn box_pierce_from_the_tilted_shot() {
     assert!(top[0] <= 4.0 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
     let side = errors[1].1;
     assert_eq!(errors[1].0, "side-centre");
-    // measured 1.44 / 1.69 mm (36-39 mm before the floor edge)
+    // measured 1.39 (true) / 1.73 mm (recorded hand-eye); 36-39 mm before the floor edge
     assert!(side[2] <= 2.5 && side[3] <= 1.0, "side-centre with the true hand-eye: {side:?}");
     assert!(side[0] <= 4.0 && side[1] <= 1.0, "side-centre with the recorded hand-eye: {side:?}");
 }

@@ -23,7 +23,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde_json::Value;
-use tags_common::{data_dir, detect_file, stats};
+use tags_common::{data_dir, detect_file, detector, stats};
 
 /// K of a `test_info.yaml` set, row-major 3x3 (no distortion: the images are rectified).
 fn k_of(k: [f64; 9], width: u32, height: u32) -> Intrinsics {
@@ -247,7 +247,7 @@ fn the_30_degree_steps_are_recovered_on_rendered_photos() {
     // The photos' angles are nominal (see the test above): the same setup rendered with exact
     // angles checks the 2 deg of the issue.
     let k = k_of(K_ROTATION, 1056, 792);
-    let mut detector = AprilTagDetector::new(&DetectorParams::default()).expect("detector");
+    let mut detector = detector();
     let poses: Vec<(Isometry3<f64>, Isometry3<f64>)> = [-30.0, 0.0, 30.0]
         .iter()
         .map(|&yaw| {

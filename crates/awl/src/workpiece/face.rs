@@ -123,13 +123,7 @@ pub fn half_density_extent(proj: &[f64], bin_m: f64) -> Option<(f64, f64)> {
     // binning of points on a lattice (the model's voxel grid) aliases, and the edge bins flicker
     let mut counts = vec![0f64; bins];
     for v in &x {
-        let at = ((v - lo) / bin_m - 0.5).max(0.0);
-        let i = (at as usize).min(bins - 1);
-        let frac = if i + 1 < bins { at - i as f64 } else { 0.0 };
-        counts[i] += 1.0 - frac;
-        if frac > 0.0 {
-            counts[i + 1] += frac;
-        }
+        add_linear(&mut counts, ((v - lo) / bin_m - 0.5).clamp(0.0, (bins - 1) as f64));
     }
     let q = |f: f64| x[((x.len() - 1) as f64 * f) as usize];
     let (a, b) = (q(0.05), q(0.95));
@@ -185,6 +179,18 @@ pub fn min_area_rectangle(hull: &[Point2<f64>]) -> Option<[Point2<f64>; 4]> {
     best.map(|(_, c)| c)
 }
 
+/// Adds a unit weight at fractional bin position `at` (>= 0) to `weights`, shared between bins
+/// `floor(at)` and the next in proportion to the distance (linear binning); the next bin is touched
+/// only when `at` is not an integer.
+fn add_linear(weights: &mut [f64], at: f64) {
+    let i = at as usize;
+    let frac = at - i as f64;
+    weights[i] += 1.0 - frac;
+    if frac > 0.0 {
+        weights[i + 1] += frac;
+    }
+}
+
 /// Shannon entropy of the histogram of `x` (bins of `bin_m`, linear binning: a value shares its
 /// weight between the two nearest bins, so the entropy varies smoothly as the values move): small
 /// when the values pile up.
@@ -194,13 +200,10 @@ fn histogram_entropy(x: impl Iterator<Item = f64> + Clone, bin_m: f64) -> f64 {
     let mut total = 0.0;
     for v in x {
         let at = (v - lo) / bin_m;
-        let i = at as usize;
-        if i + 1 >= weights.len() {
-            weights.resize(i + 2, 0.0);
+        if at as usize + 1 >= weights.len() {
+            weights.resize(at as usize + 2, 0.0);
         }
-        let frac = at - i as f64;
-        weights[i] += 1.0 - frac;
-        weights[i + 1] += frac;
+        add_linear(&mut weights, at);
         total += 1.0;
     }
     weights.iter().filter(|&&w| w > 0.0).map(|&w| w / total).map(|p| -p * p.ln()).sum()
@@ -312,10 +315,10 @@ impl SurfaceModel<'_> {
             .map(|d| Point2::new(d.dot(&u), d.dot(&v)))
             .collect();
         let axis = if floor.is_some() { Vector2::x() } else { rectangle_axis(&flat, fp.edge_bin_m) };
+        let perp = Vector2::new(-axis.y, axis.x);
         let extents = density_extents(&flat, &axis, fp.edge_bin_m).or_else(|| {
             // too few bins for densities: the hull's extents along the axis
             let hull = convex_hull(&flat);
-            let perp = Vector2::new(-axis.y, axis.x);
             let range = |d: &Vector2<f64>| {
                 hull.iter().map(|p| p.coords.dot(d)).fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x), b.max(x)))
             };
@@ -325,12 +328,11 @@ impl SurfaceModel<'_> {
         let [lu, hu, mut lv, hv] = extents.ok_or_else(|| Error::invalid(what(), "degenerate face"))?;
         if let Some(f) = &floor {
             // v is up (f·v > 0 for the frame above); the floor's line in the face plane is v = b
-            let b = -(f.normal.dot(&c) + f.offset_m) / f.normal.dot(&v);
+            let b = -f.height(&Point3::from(c)) / f.normal.dot(&v);
             if b.is_finite() && lv >= b && lv - b <= fp.floor_gap_m {
                 lv = b;
             }
         }
-        let perp = Vector2::new(-axis.y, axis.x);
         let corner = |a: f64, b: f64| axis * a + perp * b;
         let rect = [corner(lu, lv), corner(hu, lv), corner(hu, hv), corner(lu, hv)];
         let corners = rect.map(|q| Point3::from(c + u * q.x + v * q.y));

@@ -72,6 +72,11 @@ impl FloorPlane {
         (n.is_finite() && n > 1e-9 && offset_m.is_finite()).then(|| Self { normal: normal / n, offset_m: offset_m / n })
     }
 
+    /// The floor `fuse` removed (its report), if it found one.
+    pub fn of_fuse(out: &FuseOutput) -> Option<Self> {
+        out.report.floor.as_ref().and_then(|f| Self::new(Vector3::from(f.normal), f.offset_m))
+    }
+
     /// Signed height of `p` above the plane, metres.
     pub fn height(&self, p: &nalgebra::Point3<f64>) -> f64 {
         self.normal.dot(&p.coords) + self.offset_m
@@ -125,7 +130,7 @@ pub fn workpiece_from_fuse(
         views_checked: estimate.views_checked,
         detections: estimate.detections,
         refinement,
-        floor: out.report.floor.as_ref().and_then(|f| FloorPlane::new(Vector3::from(f.normal), f.offset_m)),
+        floor: FloorPlane::of_fuse(out),
         warnings,
     }))
 }

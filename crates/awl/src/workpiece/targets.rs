@@ -113,11 +113,6 @@ impl<'a> SurfaceModel<'a> {
         Self { floor, ..self }
     }
 
-    /// The model.
-    pub fn cloud(&self) -> &PointCloud {
-        self.cloud
-    }
-
     /// Places one target (see [`TargetSpec`]); with `world_from_tag`, also the angle to the tag's z.
     ///
     /// # Errors
