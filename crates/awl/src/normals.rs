@@ -226,7 +226,11 @@ impl Sym3 {
 /// Covariance (divided by the count) of the points at `indices` about their centroid, in f64;
 /// `None` for fewer than 3 points. One pass: moments of the offsets from `query` (a point of the
 /// neighbourhood, so the offsets are small and the shift loses nothing in f64).
-fn covariance(points: &[Point3<f32>], query: &Point3<f32>, indices: impl Iterator<Item = usize>) -> Option<Sym3> {
+pub(crate) fn covariance(
+    points: &[Point3<f32>],
+    query: &Point3<f32>,
+    indices: impl Iterator<Item = usize>,
+) -> Option<Sym3> {
     let q = query.coords.cast::<f64>();
     let (mut sum, mut second, mut count) = (Vector3::<f64>::zeros(), Sym3::default(), 0usize);
     for i in indices {

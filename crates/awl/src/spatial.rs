@@ -106,6 +106,56 @@ impl KdIndex {
     }
 }
 
+/// The `k` nearest points of every indexed point (the point itself included), nearest first, in one
+/// flat table (exactly [`KdIndex::knn`]'s lists): one k-NN pass whose lists several stages can
+/// share (SOR and normals in `awl fuse`). Built in parallel; the table does not depend on the
+/// number of threads.
+pub struct KnnTable {
+    k: usize,
+    rows: Vec<Neighbor>,
+}
+
+impl KnnTable {
+    /// The `k` nearest points of each of `points` (fewer when there are fewer points), from `index`,
+    /// which must be built over exactly `points`.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when `index` does not cover exactly `points`.
+    pub fn new(points: &[Point3<f32>], index: &KdIndex, k: usize) -> Result<Self> {
+        use rayon::prelude::*;
+        if index.len() != points.len() {
+            let msg = format!("index has {} points, cloud {}", index.len(), points.len());
+            return Err(Error::invalid("k-NN table", msg));
+        }
+        let k = k.min(points.len());
+        let mut rows = vec![Neighbor { index: 0, dist_sq: 0.0 }; points.len() * k];
+        if k > 0 {
+            rows.par_chunks_mut(k).zip(points.par_iter()).with_min_len(256).for_each(|(row, p)| {
+                row.copy_from_slice(&index.knn(p, k));
+            });
+        }
+        Ok(Self { k, rows })
+    }
+
+    /// Neighbours per row (`min(k, points)`).
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Number of rows (the points the table was built over; 0 when `k` is 0).
+    pub fn row_count(&self) -> usize {
+        self.rows.len().checked_div(self.k).unwrap_or(0)
+    }
+
+    /// The neighbours of point `i`, nearest first.
+    ///
+    /// # Panics
+    /// When `i` is not an index of the points the table was built over.
+    pub fn row(&self, i: usize) -> &[Neighbor] {
+        &self.rows[i * self.k..(i + 1) * self.k]
+    }
+}
+
 /// Brute-force neighbour search: the oracle the k-d tree is tested against.
 pub mod brute {
     use super::Neighbor;

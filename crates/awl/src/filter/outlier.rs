@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::spatial::KdIndex;
+use crate::spatial::{KdIndex, KnnTable, Neighbor};
 
 /// Statistical outlier removal parameters (Open3D's `nb_neighbors`, `std_ratio`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -96,17 +96,59 @@ pub fn statistical_detailed(cloud: &PointCloud, params: &SorParams) -> Result<So
     if cloud.is_empty() {
         return Ok(SorResult { kept: Vec::new(), mean_distance_m: 0.0, std_distance_m: 0.0, threshold_m: 0.0 });
     }
+    let index = KdIndex::new(&cloud.points)?;
+    let table = KnnTable::new(&cloud.points, &index, params.neighbors)?;
+    statistical_from_knn(cloud, &index, &table, params)
+}
+
+/// Like [`statistical_detailed`], with k-NN lists already computed: `table` (from `index`, both over
+/// exactly the cloud's points) with at least `params.neighbors` per row unless the cloud is
+/// smaller. A row's first `params.neighbors` entries are used when the next entry is strictly
+/// farther (the nearest points are then the same whatever the tree); when it ties, that point is
+/// queried again with exactly `params.neighbors`, as [`statistical`] does. Same result as
+/// [`statistical_detailed`], bit for bit. This is how `awl fuse` shares one k-NN pass between
+/// outlier removal and normals.
+///
+/// # Errors
+/// As [`statistical`]; also [`Error::Invalid`] when the table or the index does not match the cloud.
+pub fn statistical_from_knn(
+    cloud: &PointCloud,
+    index: &KdIndex,
+    table: &KnnTable,
+    params: &SorParams,
+) -> Result<SorResult> {
+    params.validate()?;
+    cloud.validate("statistical outlier removal input")?;
+    let k = params.neighbors.min(cloud.len());
+    if table.k() < k || index.len() != cloud.len() || (k > 0 && table.row_count() != cloud.len()) {
+        let msg = format!(
+            "k-NN table of {} x {} and index of {} for {} points and {} neighbours",
+            table.row_count(),
+            table.k(),
+            index.len(),
+            cloud.len(),
+            k
+        );
+        return Err(Error::invalid("statistical outlier removal", msg));
+    }
+    if cloud.is_empty() {
+        return Ok(SorResult { kept: Vec::new(), mean_distance_m: 0.0, std_distance_m: 0.0, threshold_m: 0.0 });
+    }
     let points = &cloud.points;
-    let index = KdIndex::new(points)?;
     let mean_dist: Vec<f64> = points
         .par_iter()
-        .map(|p| {
+        .enumerate()
+        .with_min_len(256)
+        .map_init(Vec::new, |d, (i, p)| {
             let q = p.cast::<f64>();
-            let mut d: Vec<f64> = index
-                .knn(p, params.neighbors)
-                .iter()
-                .map(|nb| (points[nb.index as usize].cast::<f64>() - q).norm())
-                .collect();
+            let row = table.row(i);
+            let distance = |nb: &Neighbor| (points[nb.index as usize].cast::<f64>() - q).norm();
+            d.clear();
+            if row.len() == k || row[k - 1].dist_sq < row[k].dist_sq {
+                d.extend(row[..k].iter().map(distance));
+            } else {
+                d.extend(index.knn(p, k).iter().map(distance));
+            }
             // Nearest first, as Open3D sums them.
             d.sort_unstable_by(f64::total_cmp);
             d.iter().sum::<f64>() / d.len() as f64

@@ -2,7 +2,9 @@
 //!
 //! Input: a cloud (metres, any frame). Output: one point per occupied cubic voxel of edge
 //! `voxel_size_m`, at the mean of the points it holds (averaged in f64), with the mean normal
-//! (re-normalised) and the mean color (rounded) when the input has them.
+//! (re-normalised; a voxel of one point keeps its normal as it is) and the mean color (rounded)
+//! when the input has them. Down-sampling an output again at the same size gives it back bit for
+//! bit, and costs one pass over the keys (no sort).
 //!
 //! Voxel `(i, j, k)` holds the points with `floor(x / size) = i`, `floor(y / size) = j`,
 //! `floor(z / size) = k` (computed in f64, stored as i64). The grid is sparse: the occupied keys
@@ -84,7 +86,15 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
     params.validate()?;
     cloud.validate("voxel downsample input")?;
     let (order, starts) = match cloud.bounds() {
-        Some(bounds) => Grid::new(&bounds, params.voxel_size_m)?.sorted_runs(&cloud.points),
+        Some(bounds) => {
+            let grid = Grid::new(&bounds, params.voxel_size_m)?;
+            if grid.one_per_voxel_in_order(&cloud.points) {
+                // Already down-sampled at this size (the ICP target at its own voxel level): the
+                // output would be the input, point for point and bit for bit.
+                return Ok(VoxelResult { cloud: cloud.clone(), points_per_voxel: vec![1; cloud.len()] });
+            }
+            grid.sorted_runs(&cloud.points)
+        }
         None => (Vec::new(), vec![0]),
     };
     let runs: Vec<&[usize]> = starts.windows(2).map(|w| &order[w[0]..w[1]]).collect();
@@ -101,6 +111,15 @@ struct Grid {
     size: f64,
     lo: [i64; 3],
     bits: [u32; 3],
+}
+
+/// `x.floor() as i64` for finite `|x| <= 2^62`, without the libm call `f64::floor` compiles to on
+/// the baseline x86-64 target (no SSE4.1 `roundsd`): the truncation is exact, and one less when it
+/// rounded a negative non-integer up. Same value bit for bit.
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - i64::from((t as f64) > x)
 }
 
 /// `v << s`, or 0 when `s >= 64`.
@@ -132,7 +151,22 @@ impl Grid {
 
     fn key(&self, p: &Point3<f32>) -> [i64; 3] {
         // In range: every coordinate lies within the bounds checked in `new`.
-        [0, 1, 2].map(|a| (f64::from(p[a]) / self.size).floor() as i64)
+        [0, 1, 2].map(|a| floor_i64(f64::from(p[a]) / self.size))
+    }
+
+    /// True when every point has its own voxel and the points are in key order: the cloud is its
+    /// own down-sampling (a centroid lies in its voxel, and a voxel of one point keeps its normal
+    /// and color as they are). Stops at the first point out of order.
+    fn one_per_voxel_in_order(&self, points: &[Point3<f32>]) -> bool {
+        let mut previous: Option<[i64; 3]> = None;
+        for p in points {
+            let k = self.key(p);
+            if previous.is_some_and(|q| q >= k) {
+                return false;
+            }
+            previous = Some(k);
+        }
+        true
     }
 
     /// Point indices sorted by (voxel key, index), and the start of each run of equal keys (plus
@@ -191,21 +225,29 @@ impl Grid {
 }
 
 /// Stable LSD radix sort of `values` by their bits `lo_bit..hi_bit` (digits of at most 11 bits).
+/// The histograms of every digit are counted in one pass over the input, then each digit is one
+/// scatter pass.
 fn radix_sort(values: &mut Vec<u64>, lo_bit: u32, hi_bit: u32) {
     let total = hi_bit.saturating_sub(lo_bit);
     if total == 0 || values.len() < 2 {
         return;
     }
-    let passes = total.div_ceil(11);
-    let digit = total.div_ceil(passes);
+    let passes = total.div_ceil(11) as usize;
+    let digit = total.div_ceil(passes as u32);
+    let shifts: Vec<u32> = (0..passes as u32).map(|k| lo_bit + k * digit).collect();
+    let masks: Vec<u64> = shifts.iter().map(|&s| (1u64 << digit.min(hi_bit - s)) - 1).collect();
+    let width = 1usize << digit;
+    let mut counts = vec![0usize; width * passes];
+    for &v in values.iter() {
+        for (k, (&s, &m)) in shifts.iter().zip(&masks).enumerate() {
+            counts[k * width + ((v >> s) & m) as usize] += 1;
+        }
+    }
     let mut buffer = vec![0u64; values.len()];
-    let mut counts = vec![0usize; 1 << digit];
-    let mut shift = lo_bit;
-    while shift < hi_bit {
-        let mask = (1u64 << digit.min(hi_bit - shift)) - 1;
-        counts.fill(0);
-        for &v in values.iter() {
-            counts[((v >> shift) & mask) as usize] += 1;
+    for (k, (&shift, &mask)) in shifts.iter().zip(&masks).enumerate() {
+        let counts = &mut counts[k * width..(k + 1) * width];
+        if counts.contains(&values.len()) {
+            continue; // every value has the same digit: this pass would not move anything
         }
         let mut sum = 0;
         for c in counts.iter_mut() {
@@ -217,7 +259,6 @@ fn radix_sort(values: &mut Vec<u64>, lo_bit: u32, hi_bit: u32) {
             counts[d] += 1;
         }
         std::mem::swap(values, &mut buffer);
-        shift += digit;
     }
 }
 
@@ -227,6 +268,10 @@ fn mean_point(points: &[Point3<f32>], run: &[usize]) -> Point3<f32> {
 }
 
 fn mean_normal(normals: &[Vector3<f32>], run: &[usize]) -> Vector3<f32> {
+    if let [one] = run {
+        // Kept as it is (not re-normalised): so a down-sampled cloud is its own down-sampling.
+        return normals[*one];
+    }
     let sum = run.iter().fold(Vector3::<f64>::zeros(), |acc, &i| acc + normals[i].cast::<f64>());
     let norm = sum.norm();
     if norm > NORMAL_CANCEL_RATIO * run.len() as f64 {
@@ -394,6 +439,58 @@ mod tests {
         let two = in_pool(2, || downsample_with_counts(&cloud, &params).expect("2 threads"));
         assert_eq!(one, two);
         assert_eq!(one.cloud.len(), 20 * 20 * 20);
+    }
+
+    #[test]
+    fn fast_floor_and_radix_sort_match_std() {
+        let edges = [0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.0 - 1e-16, -1e-300, 1e-300, 4.6e18, -4.6e18, 123456.999];
+        for x in edges {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..100_000 {
+            let x = (rng.random::<f64>() - 0.5) * 10f64.powi(rng.random_range(-3..12));
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        for bits in [1u32, 11, 12, 23, 33, 40] {
+            let mut values: Vec<u64> = (0..5000).map(|_| rng.random::<u64>() & ((1u64 << (bits + 7)) - 1)).collect();
+            values.push(values[0]);
+            let mut want = values.clone();
+            want.sort_by_key(|v| (v >> 7, v & 0x7f)); // stable on the key: equal keys keep input order
+            let order: Vec<u64> = values.clone();
+            radix_sort(&mut values, 7, 7 + bits);
+            let mut stable = order.clone();
+            stable.sort_by_key(|v| v >> 7);
+            assert_eq!(values, stable, "{bits} bits");
+            assert_eq!(
+                values.iter().map(|v| v >> 7).collect::<Vec<_>>(),
+                want.iter().map(|v| v >> 7).collect::<Vec<_>>()
+            );
+        }
+    }
+
+    #[test]
+    fn down_sampled_cloud_is_its_own_down_sampling() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let n = 50_000;
+        let cloud = PointCloud {
+            points: (0..n)
+                .map(|_| Point3::new(rng.random::<f32>() - 0.5, rng.random::<f32>(), -rng.random::<f32>()))
+                .collect(),
+            normals: Some((0..n).map(|_| Vector3::new(rng.random(), rng.random(), 0.3).normalize()).collect()),
+            colors: Some((0..n).map(|_| [rng.random(), rng.random(), rng.random()]).collect()),
+        };
+        let params = VoxelParams { voxel_size_m: 0.02 };
+        let once = downsample(&cloud, &params).expect("once");
+        let bounds = once.bounds().expect("bounds");
+        assert!(Grid::new(&bounds, 0.02).expect("grid").one_per_voxel_in_order(&once.points));
+        assert!(!Grid::new(&bounds, 0.04).expect("grid").one_per_voxel_in_order(&once.points));
+        let twice = downsample_with_counts(&once, &params).expect("twice");
+        assert_eq!(twice.cloud, once);
+        assert_eq!(twice.points_per_voxel, vec![1; once.len()]);
+        // The same cloud in another order takes the sorting path and gives the same output.
+        let reversed: Vec<usize> = (0..once.len()).rev().collect();
+        assert_eq!(downsample(&once.select(&reversed), &params).expect("reversed"), once);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! by the recorded poses, with an explicit acceptance rule), refine every view against all the
 //! others, merge, remove the floor, keep the object's cluster, smooth (MLS).
 
+mod clean;
 pub mod config;
 pub mod fuse;
 mod isolate;

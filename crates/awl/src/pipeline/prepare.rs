@@ -1,11 +1,13 @@
 //! Per-view stages: load (depth -> points, range crop), voxel down-sampling, statistical outlier
-//! removal, normals oriented toward the view's camera. Each stage runs over all views in parallel.
+//! removal and normals oriented toward the view's camera (one stage: they share one k-NN pass, see
+//! `clean`). Each stage runs over all views in parallel.
 
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
+use super::clean::clean_with_normals;
 use super::config::FuseConfig;
 use super::report::StageReport;
 use crate::cloud::PointCloud;
@@ -13,7 +15,6 @@ use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
 use crate::io::scan::{Scan, load_view};
-use crate::normals::with_normals;
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
 /// A view ready for registration.
@@ -60,8 +61,16 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
     Ok(view)
 }
 
-fn oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
-    let mut cloud = with_normals(&view.cloud, &config.normals, Some(Point3::origin()))?;
+/// Outlier removal, then normals oriented toward the camera and the incidence filter. One k-NN
+/// pass serves both (see `clean`), unless the view came with its own normals (a cloud file), which
+/// are kept.
+fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
+    let mut cloud = if view.cloud.normals.is_some() {
+        let keep = statistical(&view.cloud, &config.outliers)?;
+        non_empty(PreparedView { seed: view.seed, cloud: view.cloud.select(&keep) }, "outlier removal")?.cloud
+    } else {
+        clean_with_normals(&view.cloud, &config.outliers, &config.normals, Point3::origin())?
+    };
     if let (Some(max), Some(normals)) = (config.max_incidence_rad, cloud.normals.as_ref()) {
         let min_cos = max.cos() as f32;
         let keep: Vec<usize> = (0..cloud.len())
@@ -69,7 +78,7 @@ fn oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
             .collect();
         cloud = cloud.select(&keep);
     }
-    non_empty(PreparedView { seed: view.seed, cloud }, "normal estimation and the incidence filter")
+    non_empty(PreparedView { seed: view.seed, cloud }, "outlier removal, normal estimation and the incidence filter")
 }
 
 /// The point nearest to every view's optical axis (least squares), world frame; `None` when the
@@ -150,11 +159,7 @@ pub(crate) fn prepare(
         let cloud = downsample(&v.cloud, &config.view_voxel)?;
         Ok(PreparedView { seed: v.seed, cloud })
     });
-    stage("outliers", &mut views, reports, |v| {
-        let keep = statistical(&v.cloud, &config.outliers)?;
-        non_empty(PreparedView { seed: v.seed, cloud: v.cloud.select(&keep) }, "outlier removal")
-    });
-    stage("normals", &mut views, reports, |v| oriented(v, config));
+    stage("outliers + normals", &mut views, reports, |v| cleaned_and_oriented(v, config));
     if let Some(params) = &config.snap_plane {
         stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
     }

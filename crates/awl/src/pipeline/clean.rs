@@ -1,0 +1,145 @@
+//! Per-view outlier removal and normals from one k-NN pass.
+//!
+//! `awl fuse` removes statistical outliers (the `k` nearest points, the point included) and then
+//! estimates normals on the points it kept (the `k` nearest kept points within a radius). As two
+//! filters that is two k-d trees and two k-NN queries per point. Here one k-NN table over the
+//! voxelised view (`k + 1` per point) serves both: SOR reads it (see `statistical_from_knn`), and a
+//! kept point's normal neighbourhood is its row with the removed points skipped. That is exactly
+//! what a query in a tree over the kept points returns when the row holds `k + 1` kept points at
+//! strictly increasing distances (the set and its order are then fixed by the distances alone).
+//! Otherwise (a tie at equal distance, whose order is the tree's, or fewer than `k + 1` kept points
+//! in the row) the point is queried in a tree over the kept points, as `with_normals` does. Output:
+//! bit for bit that of `statistical` then `with_normals` on the kept cloud; the second tree is
+//! built (cheap) but queried for about 1 % of the points.
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::cloud::PointCloud;
+use crate::error::Result;
+use crate::filter::outlier::{SorParams, statistical_from_knn};
+use crate::normals::{NormalParams, covariance, orient_towards, plane_of};
+use crate::spatial::{KdIndex, KnnTable, Neighbor};
+
+/// The cloud without its statistical outliers, with unit normals oriented toward `viewpoint`
+/// (the points whose normal is undefined dropped): `statistical` then `with_normals`.
+///
+/// # Errors
+/// Bad parameters or a non-finite cloud.
+pub(crate) fn clean_with_normals(
+    cloud: &PointCloud,
+    sor: &SorParams,
+    params: &NormalParams,
+    viewpoint: Point3<f32>,
+) -> Result<PointCloud> {
+    sor.validate()?;
+    params.validate()?;
+    let index = KdIndex::new(&cloud.points)?;
+    let table = KnnTable::new(&cloud.points, &index, sor.neighbors.max(params.neighbors + 1))?;
+    let kept = statistical_from_knn(cloud, &index, &table, sor)?.kept;
+    let mut out = cloud.select(&kept);
+    let mut position = vec![u32::MAX; cloud.len()]; // index in `out` of each kept point
+    for (j, &i) in kept.iter().enumerate() {
+        position[i] = j as u32;
+    }
+    let kept_index = KdIndex::new(&out.points)?;
+    let k = params.neighbors.min(kept.len());
+    let r2 = params.radius_m.map_or(f32::INFINITY, |r| (r * r) as f32);
+    let points = &out.points;
+    let mut normals: Vec<Vector3<f32>> = (0..points.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map_init(Vec::new, |buf: &mut Vec<Neighbor>, j| {
+            let p = &points[j];
+            if !from_row(table.row(kept[j]), &position, k, buf) {
+                *buf = kept_index.knn(p, k);
+            }
+            let count = buf.iter().take_while(|n| n.dist_sq <= r2).count();
+            let fit = covariance(points, p, buf[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
+            fit.map_or_else(Vector3::zeros, |(n, _)| n.cast::<f32>())
+        })
+        .collect();
+    orient_towards(&out.points, &mut normals, &viewpoint)?;
+    let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
+    out.normals = Some(normals);
+    Ok(out.select(&valid))
+}
+
+/// The `k` nearest kept points (indices in the kept cloud) from a row of the full table, into `buf`;
+/// false when the row does not fix them (see the module docs).
+fn from_row(row: &[Neighbor], position: &[u32], k: usize, buf: &mut Vec<Neighbor>) -> bool {
+    buf.clear();
+    let mut last = f32::NEG_INFINITY;
+    for n in row {
+        let j = position[n.index as usize];
+        if j == u32::MAX {
+            continue;
+        }
+        if n.dist_sq <= last {
+            return false; // a tie: the order among equals is the tree's
+        }
+        last = n.dist_sq;
+        if buf.len() == k {
+            return true; // the (k + 1)-th kept point is strictly farther
+        }
+        buf.push(Neighbor { index: j, dist_sq: n.dist_sq });
+    }
+    // Fewer than k + 1 kept points in the row: enough only if the row is the whole cloud.
+    buf.len() == k && row.len() == position.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::outlier::statistical;
+    use crate::normals::with_normals;
+    use rand::{RngExt, SeedableRng};
+
+    /// A wavy surface in front of the camera: half of it on an exact lattice (ties at equal
+    /// distance everywhere), half jittered, plus scattered outliers.
+    fn view_like_cloud() -> PointCloud {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut points = Vec::new();
+        for a in 0..160 {
+            for b in 0..120 {
+                let (x, y) = (a as f32 * 0.002 - 0.16, b as f32 * 0.002 - 0.12);
+                let jitter = if a < 80 { 0.0 } else { (rng.random::<f32>() - 0.5) * 0.001 };
+                points.push(Point3::new(x + jitter, y, 0.8 + 0.02 * (x * 20.0).sin() + jitter));
+            }
+        }
+        for _ in 0..300 {
+            let (x, y, z): (f32, f32, f32) = (rng.random(), rng.random(), rng.random());
+            points.push(Point3::new(x - 0.5, y - 0.5, 0.3 + z));
+        }
+        PointCloud::from_points(points)
+    }
+
+    #[test]
+    fn same_as_sor_then_normals_bit_for_bit() {
+        let cloud = view_like_cloud();
+        for (sor, normals) in [
+            (SorParams::default(), NormalParams::default()),
+            (SorParams { neighbors: 8, std_ratio: 1.0 }, NormalParams { neighbors: 12, radius_m: None }),
+            (SorParams { neighbors: 30, std_ratio: 0.5 }, NormalParams { neighbors: 5, radius_m: Some(0.003) }),
+        ] {
+            let kept = cloud.select(&statistical(&cloud, &sor).expect("sor"));
+            let want = with_normals(&kept, &normals, Some(Point3::origin())).expect("normals");
+            let got = clean_with_normals(&cloud, &sor, &normals, Point3::origin()).expect("shared");
+            assert!(want.len() > 15_000, "{}", want.len());
+            assert_eq!(got, want, "{sor:?} {normals:?}");
+        }
+    }
+
+    #[test]
+    fn tiny_clouds() {
+        let cloud = PointCloud::from_points(
+            (0..5).map(|i| Point3::new(i as f32 * 0.001, (i * i) as f32 * 1e-4, 1.0)).collect(),
+        );
+        let (sor, normals) = (SorParams::default(), NormalParams::default());
+        let kept = cloud.select(&statistical(&cloud, &sor).expect("sor"));
+        let want = with_normals(&kept, &normals, Some(Point3::origin())).expect("normals");
+        assert_eq!(clean_with_normals(&cloud, &sor, &normals, Point3::origin()).expect("shared"), want);
+        let empty = clean_with_normals(&PointCloud::default(), &sor, &normals, Point3::origin()).expect("empty");
+        assert!(empty.is_empty());
+    }
+}
