@@ -423,17 +423,21 @@ mod tests {
         }
     }
 
+    /// `n` points uniform in the unit cube moved by `offset`, random normals (z in [0, `normal_z`]
+    /// before normalising) and colors.
+    fn random_cloud(seed: u64, n: usize, offset: Vector3<f32>, normal_z: f32) -> PointCloud {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let points = (0..n).map(|_| Point3::new(rng.random(), rng.random(), rng.random()) + offset).collect();
+        let normals = (0..n)
+            .map(|_| Vector3::new(rng.random(), rng.random(), rng.random::<f32>() * normal_z).normalize())
+            .collect();
+        let colors = (0..n).map(|_| [rng.random(), rng.random(), rng.random()]).collect();
+        PointCloud { points, normals: Some(normals), colors: Some(colors) }
+    }
+
     #[test]
     fn one_and_two_threads_agree_bitwise() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
-        let n = 200_000;
-        let cloud = PointCloud {
-            points: (0..n)
-                .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()))
-                .collect(),
-            normals: Some((0..n).map(|_| Vector3::new(rng.random(), rng.random(), rng.random()).normalize()).collect()),
-            colors: Some((0..n).map(|_| [rng.random(), rng.random(), rng.random()]).collect()),
-        };
+        let cloud = random_cloud(42, 200_000, Vector3::zeros(), 1.0);
         let params = VoxelParams { voxel_size_m: 0.05 };
         let one = in_pool(1, || downsample_with_counts(&cloud, &params).expect("1 thread"));
         let two = in_pool(2, || downsample_with_counts(&cloud, &params).expect("2 threads"));
@@ -471,15 +475,7 @@ mod tests {
 
     #[test]
     fn down_sampled_cloud_is_its_own_down_sampling() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-        let n = 50_000;
-        let cloud = PointCloud {
-            points: (0..n)
-                .map(|_| Point3::new(rng.random::<f32>() - 0.5, rng.random::<f32>(), -rng.random::<f32>()))
-                .collect(),
-            normals: Some((0..n).map(|_| Vector3::new(rng.random(), rng.random(), 0.3).normalize()).collect()),
-            colors: Some((0..n).map(|_| [rng.random(), rng.random(), rng.random()]).collect()),
-        };
+        let cloud = random_cloud(9, 50_000, Vector3::new(-0.5, 0.0, -1.0), 0.3);
         let params = VoxelParams { voxel_size_m: 0.02 };
         let once = downsample(&cloud, &params).expect("once");
         let bounds = once.bounds().expect("bounds");
