@@ -98,7 +98,7 @@ pub fn statistical_detailed(cloud: &PointCloud, params: &SorParams) -> Result<So
     }
     let index = KdIndex::new(&cloud.points)?;
     let table = KnnTable::new(&cloud.points, &index, params.neighbors)?;
-    statistical_from_knn(cloud, &index, &table, params)
+    Ok(from_table(cloud, &index, &table, params))
 }
 
 /// Like [`statistical_detailed`], with k-NN lists already computed: `table` (from `index`, both over
@@ -134,6 +134,12 @@ pub fn statistical_from_knn(
     if cloud.is_empty() {
         return Ok(SorResult { kept: Vec::new(), mean_distance_m: 0.0, std_distance_m: 0.0, threshold_m: 0.0 });
     }
+    Ok(from_table(cloud, index, table, params))
+}
+
+/// The statistics and the kept points from a checked, non-empty cloud and its table.
+fn from_table(cloud: &PointCloud, index: &KdIndex, table: &KnnTable, params: &SorParams) -> SorResult {
+    let k = params.neighbors.min(cloud.len());
     let points = &cloud.points;
     let mean_dist: Vec<f64> = points
         .par_iter()
@@ -161,7 +167,7 @@ pub fn statistical_from_knn(
     let std = (sq_sum / (n - 1.0)).sqrt();
     let threshold = mean + params.std_ratio * std;
     let kept = (0..mean_dist.len()).filter(|&i| mean_dist[i] > 0.0 && mean_dist[i] < threshold).collect();
-    Ok(SorResult { kept, mean_distance_m: mean, std_distance_m: std, threshold_m: threshold })
+    SorResult { kept, mean_distance_m: mean, std_distance_m: std, threshold_m: threshold }
 }
 
 /// Radius outlier removal parameters (Open3D's `radius`, `nb_points`).
