@@ -94,6 +94,22 @@ def ratio(a, b):
     return "—" if a is None or not b else f"{a / b:.2f}"
 
 
+CHECK_TEXT = {
+    "err_mm": lambda c: f"{float(c['err_mm']):.2f} mm",
+    "clusters": lambda c: f"{c['clusters']} clusters",
+    "fitness": lambda c: f"fitness {c['fitness']}, rmse {c['rmse_mm']} mm",
+    "n_out": lambda c: f"{c['n_out']} pts",
+}
+
+
+def check_text(check, keys):
+    """The accuracy check of a stage row: the first of `keys` it has, formatted ("" if none)."""
+    for key in keys:
+        if key in check:
+            return CHECK_TEXT[key](check)
+    return ""
+
+
 def e2e(out):
     path = os.path.join(out, "e2e", "runs.tsv")
     if not os.path.exists(path):
@@ -191,13 +207,7 @@ def micro(out, stage_t):
             t = int(thr)
             a = awl[k]
             chk = checks.get(f"{inp} {stage} {t}", {})
-            a_chk = ""
-            if "err_mm" in chk:
-                a_chk = f"{float(chk['err_mm']):.2f} mm"
-            elif "clusters" in chk:
-                a_chk = f"{chk['clusters']} clusters"
-            elif "fitness" in chk:
-                a_chk = f"fitness {chk['fitness']}, rmse {chk['rmse_mm']} mm"
+            a_chk = check_text(chk, ("err_mm", "clusters", "fitness"))
             cand = [r for r in rows if r["input"] == inp and r["threads"] <= t]
             if "err_mm" in chk:
                 lim = max(0.25, 2 * float(chk["err_mm"]))
@@ -206,12 +216,7 @@ def micro(out, stage_t):
             peer, pm, p_chk = "—", None, ""
             if best:
                 peer, pm = f"{best['peer']} ({best['threads']}t)", best["median_wall_s"]
-                if "err_mm" in best:
-                    p_chk = f"{best['err_mm']:.2f} mm"
-                elif "clusters" in best:
-                    p_chk = f"{best['clusters']} clusters"
-                elif "n_out" in best:
-                    p_chk = f"{best['n_out']} pts"
+                p_chk = check_text(best, ("err_mm", "clusters", "n_out"))
             elif stage == "load_view":
                 o = median(stage_t.get(("open3d", t, "load"), []))
                 if o:
