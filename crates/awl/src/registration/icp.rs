@@ -9,6 +9,7 @@
 //!   cloud's RMS radius (near 0: the geometry does not constrain some direction, e.g. a flat wall).
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
@@ -188,12 +189,20 @@ pub fn register(
     let mut levels = Vec::new();
     let mut last = None;
     let min_cos = params.max_normal_angle_rad.map(f64::cos);
-    for level in &params.levels {
-        let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
-        let tgt = level_cloud(target, level.voxel_m)?;
+    // Every level's clouds and target index are independent of the pose: built up front, in parallel.
+    let prepared: Vec<(PointCloud, PointCloud, KdIndex)> = params
+        .levels
+        .par_iter()
+        .map(|level| {
+            let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
+            let tgt = level_cloud(target, level.voxel_m)?;
+            let index = KdIndex::new(&tgt.points)?;
+            Ok((src, tgt, index))
+        })
+        .collect::<Result<_>>()?;
+    for (level, (src, tgt, index)) in params.levels.iter().zip(&prepared) {
         let normals = tgt.normals.as_deref().unwrap_or_default();
-        let index = KdIndex::new(&tgt.points)?;
-        let target_l = Target { points: &tgt.points, normals, index: &index };
+        let target_l = Target { points: &tgt.points, normals, index };
         let (mut iterations, mut converged) = (0, false);
         let length = centre_and_length(&move_cloud(&src, &t).0).1;
         let mut sys = None;
