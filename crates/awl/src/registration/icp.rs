@@ -9,7 +9,6 @@
 //!   cloud's RMS radius (near 0: the geometry does not constrain some direction, e.g. a flat wall).
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
@@ -174,6 +173,67 @@ fn conditioning(sys: &System) -> f64 {
     if hi > 0.0 { (lo / hi).max(0.0) } else { 0.0 }
 }
 
+/// One level's down-sampled source, target and target index.
+struct LevelData {
+    src: PointCloud,
+    tgt: PointCloud,
+    index: KdIndex,
+}
+
+/// Gauss-Newton iterations of one level from `t`: the moved pose, the level's statistics and its
+/// last linear system.
+fn run_level(
+    data: &LevelData,
+    level: &IcpLevel,
+    params: &IcpParams,
+    mut t: Isometry3<f64>,
+) -> (Isometry3<f64>, LevelStats, System) {
+    let LevelData { src, tgt, index } = data;
+    let normals = tgt.normals.as_deref().unwrap_or_default();
+    let target_l = Target { points: &tgt.points, normals, index };
+    let min_cos = params.max_normal_angle_rad.map(f64::cos);
+    let (mut iterations, mut converged) = (0, false);
+    let length = centre_and_length(&move_cloud(src, &t).0).1;
+    let mut sys = None;
+    while iterations < level.max_iterations {
+        let (moved, moved_normals) = move_cloud(src, &t);
+        let centre = centre_and_length(&moved).0;
+        let step = StepParams {
+            max_distance_m: level.max_correspondence_m,
+            max_tangential_m: params.max_tangential_voxels.filter(|_| level.voxel_m > 0.0).map(|k| k * level.voxel_m),
+            min_normal_cos: min_cos,
+            kernel: params.kernel,
+            kernel_scale_m: params.kernel_scale_ratio * level.max_correspondence_m,
+            centre,
+            length_m: length,
+        };
+        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step);
+        iterations += 1;
+        sys = Some(s);
+        let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
+        let omega = Vector3::new(delta[0], delta[1], delta[2]) / length;
+        let v = Vector3::new(delta[3], delta[4], delta[5]);
+        let rotation = UnitQuaternion::from_scaled_axis(omega);
+        let about_centre = Translation3::from(centre + v) * rotation * Translation3::from(-centre);
+        t = about_centre * t;
+        if omega.norm() < params.convergence_rotation_rad && v.norm() < params.convergence_translation_m {
+            converged = true;
+            break;
+        }
+    }
+    let s = sys.unwrap_or_else(System::zero);
+    let n = src.len();
+    let stats = LevelStats {
+        source_points: n,
+        target_points: tgt.len(),
+        iterations,
+        converged,
+        fitness: s.inliers as f64 / n.max(1) as f64,
+        inlier_rmse_m: if s.inliers > 0 { (s.residual_sq / s.inliers as f64).sqrt() } else { f64::INFINITY },
+    };
+    (t, stats, s)
+}
+
 /// Registers `source` to `target` (which must have normals), starting from `init`.
 ///
 /// # Errors
@@ -188,62 +248,22 @@ pub fn register(
     let mut t = *init;
     let mut levels = Vec::new();
     let mut last = None;
-    let min_cos = params.max_normal_angle_rad.map(f64::cos);
-    // Every level's clouds and target index are independent of the pose: built up front, in parallel.
-    let prepared: Vec<(PointCloud, PointCloud, KdIndex)> = params
-        .levels
-        .par_iter()
-        .map(|level| {
-            let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
-            let tgt = level_cloud(target, level.voxel_m)?;
-            let index = KdIndex::new(&tgt.points)?;
-            Ok((src, tgt, index))
-        })
-        .collect::<Result<_>>()?;
-    for (level, (src, tgt, index)) in params.levels.iter().zip(&prepared) {
-        let normals = tgt.normals.as_deref().unwrap_or_default();
-        let target_l = Target { points: &tgt.points, normals, index };
-        let (mut iterations, mut converged) = (0, false);
-        let length = centre_and_length(&move_cloud(&src, &t).0).1;
-        let mut sys = None;
-        while iterations < level.max_iterations {
-            let (moved, moved_normals) = move_cloud(&src, &t);
-            let centre = centre_and_length(&moved).0;
-            let step = StepParams {
-                max_distance_m: level.max_correspondence_m,
-                max_tangential_m: params
-                    .max_tangential_voxels
-                    .filter(|_| level.voxel_m > 0.0)
-                    .map(|k| k * level.voxel_m),
-                min_normal_cos: min_cos,
-                kernel: params.kernel,
-                kernel_scale_m: params.kernel_scale_ratio * level.max_correspondence_m,
-                centre,
-                length_m: length,
-            };
-            let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step);
-            iterations += 1;
-            sys = Some((s, src.len()));
-            let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
-            let omega = Vector3::new(delta[0], delta[1], delta[2]) / length;
-            let v = Vector3::new(delta[3], delta[4], delta[5]);
-            let rotation = UnitQuaternion::from_scaled_axis(omega);
-            let about_centre = Translation3::from(centre + v) * rotation * Translation3::from(-centre);
-            t = about_centre * t;
-            if omega.norm() < params.convergence_rotation_rad && v.norm() < params.convergence_translation_m {
-                converged = true;
-                break;
-            }
-        }
-        let (s, n) = sys.unwrap_or((System::zero(), src.len()));
-        levels.push(LevelStats {
-            source_points: src.len(),
-            target_points: tgt.len(),
-            iterations,
-            converged,
-            fitness: s.inliers as f64 / n.max(1) as f64,
-            inlier_rmse_m: if s.inliers > 0 { (s.residual_sq / s.inliers as f64).sqrt() } else { f64::INFINITY },
-        });
+    // A level's clouds and target index do not depend on the pose: the next level's are built
+    // while this level iterates (two levels in memory at most).
+    let build = |level: &IcpLevel| -> Result<LevelData> {
+        let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
+        let tgt = level_cloud(target, level.voxel_m)?;
+        let index = KdIndex::new(&tgt.points)?;
+        Ok(LevelData { src, tgt, index })
+    };
+    let mut next = params.levels.first().map(build).transpose()?;
+    for (k, level) in params.levels.iter().enumerate() {
+        let Some(data) = next.take() else { break };
+        let ((moved_to, stats, s), built) =
+            rayon::join(|| run_level(&data, level, params, t), || params.levels.get(k + 1).map(build).transpose());
+        next = built?;
+        t = moved_to;
+        levels.push(stats);
         last = Some(s);
     }
     let s = last.unwrap_or_else(System::zero);
