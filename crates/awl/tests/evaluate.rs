@@ -229,10 +229,8 @@ fn noise_floor_and_outliers_do_not_move_the_alignment() {
 
 #[test]
 fn a_fused_box_agrees_with_open3d() {
-    use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
-    let sim =
-        simulate(&SimParams { scene: SceneKind::Box, views: 4, seed: 2, noise: NoiseLevel::Realistic, shot: None })
-            .expect("simulate");
+    use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
+    let sim = simulate(&SimParams { views: 4, seed: 2, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
     let dir = tempfile::tempdir().expect("tempdir");
     let scan_dir = dir.path().join("scan");
     write_simulation(&scan_dir, &sim, false).expect("write");

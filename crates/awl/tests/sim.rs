@@ -24,7 +24,7 @@ use parry3d_f64::math::Vector as PVector;
 use parry3d_f64::query::{PointQuery, Ray, RayCast};
 
 fn params(scene: SceneKind, noise: NoiseLevel, seed: u64, views: usize) -> SimParams {
-    SimParams { scene, views, seed, noise, shot: None }
+    SimParams { scene, views, seed, noise, shot: None, camera_seed: None }
 }
 
 fn cached(cell: &'static OnceLock<Simulation>, p: SimParams) -> &'static Simulation {
@@ -376,6 +376,54 @@ fn shots_are_in_the_robot_frame_and_see_the_tag() {
         assert!((sim.truth.world_from_object * target.p_object - p).norm() < 1e-12);
         assert!((0.4..1.2).contains(&p.coords.xy().norm()), "target {p:?} is in front of the robot");
     }
+}
+
+/// The depth-scale error of a simulation measured against the CAD: the median over workpiece pixels
+/// of recorded depth / ray-cast true depth, minus 1.
+fn measured_depth_scale_error(sim: &Simulation) -> f64 {
+    let cad = parry(&sim.cad);
+    let cam = camera(sim);
+    let mut ratios = Vec::new();
+    for (i, view) in sim.views.iter().enumerate() {
+        let object_from_camera = sim.truth.world_from_object.inverse() * sim.truth.views[i].world_from_camera;
+        let o = object_from_camera.translation.vector;
+        let w = view.depth.width as usize;
+        for k in (0..view.depth.data.len()).step_by(3) {
+            if view.depth.data[k] == 0 || view.labels.data[k] != LABEL_WORKPIECE {
+                continue;
+            }
+            let n = cam.intrinsics.ray(&Point2::new((k % w) as f64, (k / w) as f64));
+            let d = object_from_camera.rotation * Vector3::new(n.x, n.y, 1.0);
+            let ray = Ray::new(PVector::new(o.x, o.y, o.z), PVector::new(d.x, d.y, d.z));
+            // the ray's parameter along (x, y, 1) is the depth z
+            if let Some(z) = cad.cast_local_ray(&ray, 10.0, false) {
+                ratios.push(f64::from(view.depth.data[k]) * 1e-3 / z - 1.0);
+            }
+        }
+    }
+    assert!(ratios.len() > 5_000, "{} workpiece pixels", ratios.len());
+    percentile(&mut ratios, 0.5)
+}
+
+#[test]
+fn a_shot_taken_with_the_scans_camera_shares_its_intrinsics_and_depth_scale() {
+    let scan = box_realistic();
+    let scan_error = measured_depth_scale_error(scan);
+    let shot = |camera_seed| {
+        simulate(&SimParams { seed: 1003, camera_seed, ..SimParams::shot(SceneKind::Box, ShotPose::Flat) })
+            .expect("shot")
+    };
+    let (same, other) = (shot(Some(1)), shot(None));
+    let (same_error, other_error) = (measured_depth_scale_error(&same), measured_depth_scale_error(&other));
+    println!(
+        "depth-scale error measured: scan {scan_error:.5}, shot with its camera {same_error:.5}, other camera {other_error:.5}"
+    );
+    assert_eq!(camera(&same), camera(scan));
+    assert_ne!(camera(&other), camera(scan));
+    // the median of ~1 mm-quantised, noisy ratios resolves the scale to about 1e-4
+    assert!((same_error - scan_error).abs() < 2e-4, "scan {scan_error} vs shot {same_error}");
+    // and it tells another camera apart (measured 0.00071 vs 0.00021)
+    assert!((other_error - scan_error).abs() > 3e-4, "scan {scan_error} vs other camera {other_error}");
 }
 
 #[test]

@@ -12,7 +12,7 @@ use awl::io::mesh::read_mesh;
 use awl::io::scan::read_scan;
 use awl::io::truth::read_truth;
 use awl::pipeline::FuseConfig;
-use awl::sim::{NoiseLevel, SceneKind, SimParams, simulate, write_simulation};
+use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
 
 use super::common::{prepare_output, set_threads};
 
@@ -69,7 +69,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     };
 
     let t = Instant::now();
-    let params = SimParams { scene, views: args.views, seed: args.seed, noise: NoiseLevel::Realistic, shot: None };
+    let params = SimParams { views: args.views, seed: args.seed, ..SimParams::scan(scene) };
     let sim = simulate(&params).context("simulation failed")?;
     write_simulation(&scan_dir, &sim, args.force)
         .with_context(|| format!("cannot write the scan folder {}", scan_dir.display()))?;

@@ -57,6 +57,10 @@ pub struct SimulateArgs {
     /// Simulate a piercing-time shot (world = robot base) instead of a scan.
     #[arg(long, value_enum)]
     pub shot: Option<ShotArg>,
+    /// Seed of the camera (intrinsics, global depth-scale error): give a shot the seed of the scan
+    /// taken with the same camera. Default: --seed.
+    #[arg(long)]
+    pub camera_seed: Option<u64>,
     /// Output scan folder (must not exist or be empty, unless --force).
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
@@ -82,7 +86,7 @@ fn params(args: &SimulateArgs) -> SimParams {
         ShotArg::Tilt30 => ShotPose::Tilt30,
     });
     let views = args.views.unwrap_or(if shot.is_some() { 2 } else { 12 });
-    SimParams { scene, views, seed: args.seed, noise, shot }
+    SimParams { scene, views, seed: args.seed, noise, shot, camera_seed: args.camera_seed }
 }
 
 /// Runs `awl simulate`.

@@ -109,6 +109,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         scene,
         pose,
         seed: args.seed,
+        camera_seed: args.seed,
         ee_from_camera: hand_eye.ee_from_camera,
         params: PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() },
     };

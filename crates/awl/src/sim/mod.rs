@@ -134,17 +134,26 @@ pub struct SimParams {
     pub noise: NoiseLevel,
     /// `Some` for a piercing-time shot instead of a scan.
     pub shot: Option<ShotPose>,
+    /// Seed of the camera: its intrinsics and its global depth-scale error, which belong to the
+    /// device, so a scan and the shots taken later with the same camera share them (give the scan's
+    /// seed). `None`: `seed`.
+    pub camera_seed: Option<u64>,
 }
 
 impl SimParams {
     /// A realistic 12-view scan of `scene` with seed 1.
     pub fn scan(scene: SceneKind) -> Self {
-        Self { scene, views: 12, seed: 1, noise: NoiseLevel::Realistic, shot: None }
+        Self { scene, views: 12, seed: 1, noise: NoiseLevel::Realistic, shot: None, camera_seed: None }
     }
 
     /// A realistic 2-view shot of `scene` in `pose` with seed 1.
     pub fn shot(scene: SceneKind, pose: ShotPose) -> Self {
-        Self { scene, views: 2, seed: 1, noise: NoiseLevel::Realistic, shot: Some(pose) }
+        Self { scene, views: 2, seed: 1, noise: NoiseLevel::Realistic, shot: Some(pose), camera_seed: None }
+    }
+
+    /// The seed of the camera (see `camera_seed`).
+    pub fn camera_seed(&self) -> u64 {
+        self.camera_seed.unwrap_or(self.seed)
     }
 
     fn validate(&self) -> Result<()> {
@@ -224,7 +233,7 @@ pub fn simulated_camera(seed: u64) -> DepthCamera {
 pub fn simulate(params: &SimParams) -> Result<Simulation> {
     params.validate()?;
     let wp = workpiece::workpiece(params.scene);
-    let camera = simulated_camera(params.seed);
+    let camera = simulated_camera(params.camera_seed());
     let plan = match params.shot {
         None => record::scan_plan(&wp, params, &camera)?,
         Some(pose) => record::shot_plan(&wp, params, pose, &camera)?,
@@ -233,7 +242,7 @@ pub fn simulate(params: &SimParams) -> Result<Simulation> {
     let renderer = render::Renderer {
         world: &plan.world,
         camera: &camera,
-        noise: noise::DepthNoise::new(params.seed, scale),
+        noise: noise::DepthNoise::new(params.camera_seed(), scale),
         color_sigma: 2.0 * scale,
         seed: params.seed,
     };

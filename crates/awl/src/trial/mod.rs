@@ -28,7 +28,7 @@ use crate::io::truth::{Truth, TruthTarget};
 use crate::mesh::TriMesh;
 use crate::pierce::{PierceParams, plan};
 use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
-use crate::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
+use crate::sim::{SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
 use crate::transform::pose_difference;
 use crate::workpiece::{FloorPlane, SurfaceModel, TargetSpec, Workpiece};
 
@@ -167,6 +167,9 @@ pub struct ShotSetup {
     pub pose: ShotPose,
     /// Seed of the run (each trial's shot gets [`shot_seed`]).
     pub seed: u64,
+    /// Seed of the camera: the scan's, as the same camera takes the shots
+    /// ([`SimParams::camera_seed`]).
+    pub camera_seed: u64,
     /// The `T_ee_camera` used at piercing time (e.g. [`calibrate_rig`]'s).
     pub ee_from_camera: Isometry3<f64>,
     /// Planning parameters.
@@ -181,7 +184,7 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
     let shot_seed = shot_seed(setup.seed, k);
     let (scene, pose, params) = (setup.scene, setup.pose, &setup.params);
     let sim =
-        simulate(&SimParams { scene, views: 2, seed: shot_seed, noise: NoiseLevel::Realistic, shot: Some(pose) })?;
+        simulate(&SimParams { seed: shot_seed, camera_seed: Some(setup.camera_seed), ..SimParams::shot(scene, pose) })?;
     write_simulation(dir, &sim, false)?;
     let mut shot = read_scan(dir)?;
     shot.ee_from_camera = Some(setup.ee_from_camera);
