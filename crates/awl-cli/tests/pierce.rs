@@ -105,6 +105,7 @@ fn plans_the_top_centre_of_a_tilted_box_within_2_mm_and_writes_urscript() {
     let su = setup(0);
     let plan = su.dir.path().join("plan.json");
     let script = su.dir.path().join("pierce.script");
+    let techman = su.dir.path().join("pierce.tm");
     let target = format!("face-centre@{},{},{}", su.pick.x, su.pick.y, su.pick.z);
     let out = awl(&[
         "pierce",
@@ -121,6 +122,8 @@ fn plans_the_top_centre_of_a_tilted_box_within_2_mm_and_writes_urscript() {
         s(&plan),
         "--urscript",
         s(&script),
+        "--techman",
+        s(&techman),
     ]);
     assert!(out.status.success(), "{}", text(&out));
     println!("{}", text(&out));
@@ -151,6 +154,40 @@ fn plans_the_top_centre_of_a_tilted_box_within_2_mm_and_writes_urscript() {
     let program = std::fs::read_to_string(&script).expect("script");
     assert_eq!(program.matches("movel(p[").count(), 3, "{program}");
     assert!(program.contains(&format!("{:.6}, {:.6}, {:.6}", ur[0], ur[1], ur[2])), "{program}");
+    check_techman_packets(&std::fs::read_to_string(&techman).expect("techman"), &[approach, pierce]);
+}
+
+/// Parses the Techman listen-node packets: each `$TMSCT,<len>,<data>,*<xor>` CR LF with the right
+/// length and checksum; the first target's `Line("CAP", x, y, z, rx, ry, rz, ...)` moves (mm,
+/// degrees, R = Rz Ry Rx) give back `poses` within 1 um and 1e-4 deg.
+fn check_techman_packets(text: &str, poses: &[nalgebra::Isometry3<f64>]) {
+    let packets: Vec<&str> = text.split_inclusive("\r\n$").collect();
+    assert_eq!(packets.len(), 2, "one target and the exit: {text}");
+    for packet in &packets {
+        let packet = packet.trim_start_matches('$').trim_end_matches('$');
+        let body_end = packet.rfind(",*").expect("checksum");
+        let body = &packet[..body_end + 1];
+        let checksum = u8::from_str_radix(&packet[body_end + 2..body_end + 4], 16).expect("hex");
+        assert_eq!(body.bytes().fold(0u8, |a, b| a ^ b), checksum, "{packet}");
+        let rest = body.strip_prefix("TMSCT,").expect("TMSCT");
+        let (len, data) = rest.split_once(',').expect("length");
+        assert_eq!(len.parse::<usize>().expect("length"), data.len() - 1, "{packet}");
+    }
+    assert!(packets[1].contains("ScriptExit()"));
+    let moves: Vec<Vec<f64>> = packets[0]
+        .split("Line(\"CAP\",")
+        .skip(1)
+        .map(|m| m.split(',').take(6).map(|v| v.parse().expect("number")).collect())
+        .collect();
+    assert_eq!(moves.len(), 3, "{}", packets[0]);
+    let axis = |v: Vector3<f64>, deg: f64| {
+        UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(v), deg.to_radians())
+    };
+    for (m, pose) in moves.iter().zip(poses) {
+        let r = axis(Vector3::z(), m[5]) * axis(Vector3::y(), m[4]) * axis(Vector3::x(), m[3]);
+        assert!(r.angle_to(&pose.rotation).to_degrees() < 1e-4, "{m:?}");
+        assert!((Vector3::new(m[0], m[1], m[2]) * 1e-3 - pose.translation.vector).norm() < 1e-6, "{m:?}");
+    }
 }
 
 /// Runs `awl pierce` expecting failure: returns the message; checks nothing was written.

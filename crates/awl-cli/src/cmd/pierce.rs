@@ -9,7 +9,9 @@ use awl::io::mesh::read_cloud;
 use awl::io::plan::{PlanSources, plan_json, write_plan};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
-use awl::pierce::{AxisChoice, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, urscript};
+use awl::pierce::{
+    AxisChoice, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, techman_packets, urscript,
+};
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
 
@@ -45,6 +47,10 @@ pub struct PierceArgs {
     /// Also write a URScript program (movel approach -> pierce -> retract per target).
     #[arg(long)]
     pub urscript: Option<PathBuf>,
+    /// Also write Techman listen-node packets ($TMSCT, Line("CAP") approach -> pierce -> retract per
+    /// target, then ScriptExit()), to send in order to a TMflow Listen node.
+    #[arg(long)]
+    pub techman: Option<PathBuf>,
     /// Piercing direction.
     #[arg(long, value_enum, default_value = "normal")]
     pub axis: AxisArg,
@@ -84,7 +90,7 @@ fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let specs = targets(args)?;
-    for out in std::iter::once(&args.output).chain(&args.urscript) {
+    for out in std::iter::once(&args.output).chain(&args.urscript).chain(&args.techman) {
         let mut inputs: Vec<&Path> = vec![args.workpiece.as_path()];
         inputs.extend(args.targets_file.as_deref());
         inputs.extend(args.hand_eye.as_deref());
@@ -125,9 +131,12 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         .urscript
         .as_ref()
         .map(|_| urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string()));
+    let techman = args.techman.as_ref().map(|_| techman_packets(&plan, &ScriptSpeeds::default()));
     write_plan(&args.output, &plan, &sources)?;
-    if let (Some(path), Some(text)) = (&args.urscript, script) {
-        awl::io::write_atomic(path, text.as_bytes())?;
+    for (path, text) in [(&args.urscript, script), (&args.techman, techman)] {
+        if let (Some(path), Some(text)) = (path, text) {
+            awl::io::write_atomic(path, text.as_bytes())?;
+        }
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&plan_json(&plan, &sources))?);
@@ -167,7 +176,7 @@ fn print_summary(plan: &PiercePlan, args: &PierceArgs) {
         println!("warning: {w}");
     }
     println!("wrote {}", args.output.display());
-    if let Some(path) = &args.urscript {
+    for path in args.urscript.iter().chain(&args.techman) {
         println!("wrote {}", path.display());
     }
 }

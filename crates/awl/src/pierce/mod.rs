@@ -12,5 +12,5 @@ pub mod tool;
 
 pub use locate::{LocateParams, Located, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
-pub use script::{ScriptSpeeds, urscript};
-pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tool_poses, ur_pose};
+pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
+pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

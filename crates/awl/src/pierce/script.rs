@@ -1,13 +1,13 @@
-//! Robot programs for a plan: URScript (Universal Robots).
+//! Robot programs for a plan: URScript (Universal Robots) and Techman listen-node packets.
 //!
 //! Poses are the tool centre point in the robot base frame: set the controller's TCP to the tip of
-//! the piercing tool before running. Per target: `movel` to approach, `movel` (slow) to pierce,
-//! `movel` back to retract.
+//! the piercing tool before running. Per target: a linear move to approach, a slow one to pierce,
+//! and back out to retract (URScript `movel`; Techman `Line("CAP", ...)`).
 
 use std::fmt::Write as _;
 
 use crate::pierce::plan::PiercePlan;
-use crate::pierce::tool::ur_pose;
+use crate::pierce::tool::{tm_pose, ur_pose};
 
 /// Speeds of the generated program.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,4 +49,59 @@ pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Strin
     let _ = writeln!(s, "end");
     let _ = writeln!(s, "awl_pierce()");
     s
+}
+
+/// One Techman listen-node packet: `$TMSCT,<length>,<id>,<script>,*<checksum>` and CR LF, where the
+/// length counts the bytes of `<id>,<script>` and the checksum is the XOR of every byte between `$`
+/// and `*`, as two upper-case hex digits. `id` must be alphanumeric; a script's lines are joined
+/// with CR LF.
+pub fn tmsct_packet(id: &str, script: &str) -> String {
+    let data = format!("{id},{script}");
+    let body = format!("TMSCT,{},{data},", data.len());
+    let checksum = body.bytes().fold(0u8, |a, b| a ^ b);
+    format!("${body}*{checksum:02X}\r\n")
+}
+
+fn tm_line(pose: &nalgebra::Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
+    let v = tm_pose(pose);
+    // speed in mm/s, time to reach it in ms, no blending, precise positioning
+    let speed_mm_s = (speed_m_s * 1e3).round().max(1.0);
+    let accel_ms = (speed_m_s / accel_m_s2 * 1e3).round().max(1.0);
+    format!(
+        "Line(\"CAP\",{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{speed_mm_s},{accel_ms},0,true)",
+        v[0], v[1], v[2], v[3], v[4], v[5]
+    )
+}
+
+/// The Techman listen-node packets of `plan` (module docs): per target, one `$TMSCT` packet (id
+/// `awl<i>`) that selects the robot base and moves approach -> pierce -> retract, then one that
+/// leaves the listen node (`ScriptExit()`). Send them in order to the listen node (TCP port 5890),
+/// each after the previous one's reply.
+pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
+    let (a, v, slow) = (speeds.accel_m_s2, speeds.travel_m_s, speeds.pierce_m_s);
+    let mut out = String::new();
+    for (i, t) in plan.targets.iter().enumerate() {
+        let lines = [
+            "ChangeBase(\"RobotBase\")".to_string(),
+            tm_line(&t.poses.approach, v, a),
+            tm_line(&t.poses.pierce, slow, a),
+            tm_line(&t.poses.retract, slow, a),
+        ];
+        out.push_str(&tmsct_packet(&format!("awl{i}"), &lines.join("\r\n")));
+    }
+    out.push_str(&tmsct_packet("awlexit", "ScriptExit()"));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tmsct_packets_match_published_listen_node_examples() {
+        // length and XOR checksum as in the TM listen-node examples of the TM ROS driver's users
+        assert_eq!(tmsct_packet("1", "var_i++"), "$TMSCT,9,1,var_i++,*06\r\n");
+        assert_eq!(tmsct_packet("2", "StopAndClearBuffer()"), "$TMSCT,22,2,StopAndClearBuffer(),*64\r\n");
+        assert_eq!(tmsct_packet("2", "OK"), "$TMSCT,4,2,OK,*5F\r\n");
+    }
 }

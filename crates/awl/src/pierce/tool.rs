@@ -95,6 +95,14 @@ pub fn ur_pose(pose: &Isometry3<f64>) -> [f64; 6] {
     [t.x, t.y, t.z, r.x, r.y, r.z]
 }
 
+/// A pose as Techman's `x, y, z, rx, ry, rz`: millimetres and fixed-axis angles in degrees,
+/// `R = Rz(rz) Ry(ry) Rx(rx)` (the TM driver's convention, ROS roll-pitch-yaw).
+pub fn tm_pose(pose: &Isometry3<f64>) -> [f64; 6] {
+    let t = pose.translation.vector * 1e3;
+    let (rx, ry, rz) = pose.rotation.euler_angles();
+    [t.x, t.y, t.z, rx.to_degrees(), ry.to_degrees(), rz.to_degrees()]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -117,6 +125,20 @@ mod tests {
         assert!(tool_poses(&p, &Vector3::zeros(), &Stroke::default()).is_err());
         let bad = Stroke { depth_m: -0.01, ..Stroke::default() };
         assert!(tool_poses(&p, &Vector3::z(), &bad).unwrap_err().to_string().contains("depth_m"));
+    }
+
+    #[test]
+    fn techman_angles_compose_as_rz_ry_rx_in_degrees_and_millimetres() {
+        let (rx, ry, rz) = (25f64, -40f64, 130f64);
+        let axis = |v: Vector3<f64>, deg: f64| {
+            UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(v), deg.to_radians())
+        };
+        let r = axis(Vector3::z(), rz) * axis(Vector3::y(), ry) * axis(Vector3::x(), rx);
+        let tm = tm_pose(&Isometry3::from_parts(Translation3::new(0.5, -0.25, 0.125), r));
+        let expected = [500.0, -250.0, 125.0, rx, ry, rz];
+        for (a, b) in tm.iter().zip(expected) {
+            assert!((a - b).abs() < 1e-9, "{tm:?} vs {expected:?}");
+        }
     }
 
     #[test]
