@@ -195,6 +195,7 @@ fn run_level(
     let (mut iterations, mut converged) = (0, false);
     let length = centre_and_length(&move_cloud(src, &t).0).1;
     let mut sys = None;
+    let mut previous = vec![u32::MAX; src.len()];
     while iterations < level.max_iterations {
         let (moved, moved_normals) = move_cloud(src, &t);
         let centre = centre_and_length(&moved).0;
@@ -207,7 +208,7 @@ fn run_level(
             centre,
             length_m: length,
         };
-        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step);
+        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step, &mut previous);
         iterations += 1;
         sys = Some(s);
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };

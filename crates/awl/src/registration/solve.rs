@@ -63,21 +63,35 @@ pub(crate) struct StepParams {
 
 /// Builds the weighted normal equations for moved source points (`moved`, in the target frame,
 /// with optional moved normals).
+///
+/// `previous` holds each source point's correspondence of the previous iteration (`u32::MAX`:
+/// none) and is updated. The pose moves little between iterations, so the distance to the previous
+/// correspondence bounds the search radius: the nearest target point is the same (it is at most
+/// that far), found with far fewer tree nodes visited.
 pub(crate) fn linearise(
     moved: &[Point3<f64>],
     moved_normals: Option<&[Vector3<f64>]>,
     target: &Target<'_>,
     p: &StepParams,
+    previous: &mut [u32],
 ) -> System {
     let max_m = p.max_distance_m as f32;
     let partial: Vec<System> = moved
         .par_chunks(CHUNK)
+        .zip(previous.par_chunks_mut(CHUNK))
         .enumerate()
-        .map(|(c, chunk)| {
+        .map(|(c, (chunk, hints))| {
             let mut sys = System::zero();
-            for (j, s) in chunk.iter().enumerate() {
+            for (j, (s, hint)) in chunk.iter().zip(hints.iter_mut()).enumerate() {
                 let q = s.cast::<f32>();
-                let Some(nb) = target.index.nearest_within(&q, max_m) else { continue };
+                let radius = match target.points.get(*hint as usize) {
+                    // a hair wider than the previous correspondence, so that it stays inside
+                    Some(prev) => ((prev - q).norm() * (1.0 + 1e-4) + 1e-6).min(max_m),
+                    None => max_m,
+                };
+                let found = target.index.nearest_within(&q, radius);
+                *hint = found.map_or(u32::MAX, |nb| nb.index);
+                let Some(nb) = found else { continue };
                 let t = target.points[nb.index as usize].cast::<f64>();
                 let n = target.normals[nb.index as usize].cast::<f64>();
                 if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals) {
