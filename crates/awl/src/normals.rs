@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::spatial::KdIndex;
+use crate::spatial::{CHAIN, KdIndex};
 
 /// Neighbourhoods whose middle covariance eigenvalue is below this fraction of the trace are
 /// treated as collinear: the normal is undefined there (see [`NormalsResult`]).
@@ -100,19 +100,20 @@ pub fn estimate(points: &[Point3<f32>], index: &KdIndex, params: &NormalParams) 
         return Err(Error::invalid("normals", format!("index has {} points, cloud {}", index.len(), points.len())));
     }
     let r2 = params.radius_m.map_or(f32::INFINITY, |r| (r * r) as f32);
-    let (normals, curvature): (Vec<Vector3<f32>>, Vec<f32>) = points
-        .par_iter()
-        .with_min_len(256)
-        .map(|p| {
-            let neighbors = index.knn(p, params.neighbors);
-            let count = neighbors.iter().take_while(|n| n.dist_sq <= r2).count();
-            let fit = covariance(points, p, neighbors[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
-            match fit {
-                Some((n, c)) => (n.cast::<f32>(), c as f32),
-                None => (Vector3::zeros(), f32::NAN),
-            }
-        })
-        .unzip();
+    let mut normals = vec![Vector3::zeros(); points.len()];
+    let mut curvature = vec![f32::NAN; points.len()];
+    normals.par_chunks_mut(CHAIN).zip(curvature.par_chunks_mut(CHAIN)).zip(points.par_chunks(CHAIN)).for_each(
+        |((normals, curvature), chunk)| {
+            index.knn_each(chunk, params.neighbors, |i, neighbors| {
+                let p = &chunk[i];
+                let count = neighbors.iter().take_while(|n| n.dist_sq <= r2).count();
+                let fit = covariance(points, p, neighbors[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
+                if let Some((n, c)) = fit {
+                    (normals[i], curvature[i]) = (n.cast::<f32>(), c as f32);
+                }
+            });
+        },
+    );
     let degenerate = curvature.iter().filter(|c| c.is_nan()).count();
     Ok(NormalsResult { normals, curvature, degenerate })
 }

@@ -8,6 +8,9 @@ use nalgebra::Point3;
 
 use crate::error::{Error, Result};
 
+/// Consecutive points queried in one chain by [`KdIndex::knn_each`] (the chains run in parallel).
+pub(crate) const CHAIN: usize = 256;
+
 /// A neighbour: index into the indexed point slice, squared distance (m²).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Neighbor {
@@ -90,6 +93,42 @@ impl KdIndex {
             .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
     }
 
+    /// The `k` nearest points within `radius_m` (inclusive), nearest first: [`KdIndex::knn`]'s
+    /// answer when at least `k` points lie that close, found with fewer tree nodes visited.
+    pub fn knn_within(&self, query: &Point3<f32>, k: usize, radius_m: f32) -> Vec<Neighbor> {
+        let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
+        self.tree
+            .query(&to_array(query))
+            .nearest_n::<SquaredEuclidean<f32>>(k)
+            .within(radius_m * radius_m)
+            .execute()
+            .into_iter()
+            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
+            .collect()
+    }
+
+    /// The `k` nearest points of each of `points`, in order, into `emit(i, neighbours)`: the
+    /// distances [`KdIndex::knn`] gives, nearest first, equal distances by index (of points tied at
+    /// the `k`-th distance, which ones make the list is the search's choice, as in `knn`). Consecutive points are usually close (raster or voxel order), and the
+    /// previous point's `k`-th distance plus the step between them bounds the next one's (its `k`
+    /// neighbours are at most that far), so each query is a bounded search that visits fewer tree
+    /// nodes. A bound that holds fewer than `k` points (far steps, rounding) falls back to the
+    /// unbounded query.
+    pub fn knn_each(&self, points: &[Point3<f32>], k: usize, mut emit: impl FnMut(usize, &[Neighbor])) {
+        let mut previous: Option<(Point3<f32>, f32)> = None;
+        for (i, p) in points.iter().enumerate() {
+            let bounded = previous.map(|(q, r)| self.knn_within(p, k, ((p - q).norm() + r) * (1.0 + 1e-4) + 1e-6));
+            let mut row = match bounded {
+                Some(row) if row.len() >= k.min(self.len) => row,
+                _ => self.knn(p, k),
+            };
+            // the tree orders equal distances by its search path, which the bound changes
+            row.sort_unstable_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
+            previous = row.last().map(|n| (*p, n.dist_sq.sqrt()));
+            emit(i, &row);
+        }
+    }
+
     /// Every point within `radius_m` (inclusive), in no particular order.
     pub fn within(&self, query: &Point3<f32>, radius_m: f32) -> Vec<Neighbor> {
         if self.len == 0 {
@@ -107,9 +146,9 @@ impl KdIndex {
 }
 
 /// The `k` nearest points of every indexed point (the point itself included), nearest first, in one
-/// flat table (exactly [`KdIndex::knn`]'s lists): one k-NN pass whose lists several stages can
-/// share (SOR and normals in `awl fuse`). Built in parallel; the table does not depend on the
-/// number of threads.
+/// flat table ([`KdIndex::knn_each`]'s lists: [`KdIndex::knn`]'s distances, equal ones by index): one
+/// k-NN pass whose lists several stages can share (SOR and normals in `awl fuse`). Built in
+/// parallel; the table does not depend on the number of threads.
 pub struct KnnTable {
     k: usize,
     rows: Vec<Neighbor>,
@@ -130,8 +169,8 @@ impl KnnTable {
         let k = k.min(points.len());
         let mut rows = vec![Neighbor { index: 0, dist_sq: 0.0 }; points.len() * k];
         if k > 0 {
-            rows.par_chunks_mut(k).zip(points.par_iter()).with_min_len(256).for_each(|(row, p)| {
-                row.copy_from_slice(&index.knn(p, k));
+            rows.par_chunks_mut(k * CHAIN).zip(points.par_chunks(CHAIN)).for_each(|(rows, chunk)| {
+                index.knn_each(chunk, k, |i, row| rows[i * k..(i + 1) * k].copy_from_slice(row));
             });
         }
         Ok(Self { k, rows })
@@ -188,6 +227,49 @@ mod tests {
     fn random_points(n: usize, seed: u64) -> Vec<Point3<f32>> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         (0..n).map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>())).collect()
+    }
+
+    #[test]
+    fn knn_each_and_the_table_give_the_trees_rows() {
+        // random order (far steps: the bound rarely helps) and a raster-ordered noisy surface with
+        // a pixel-like lattice (close steps, equal distances)
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut surface: Vec<Point3<f32>> = (0..20_000)
+            .map(|i| {
+                let (u, v) = ((i % 200) as f32 * 0.002, (i / 200) as f32 * 0.002);
+                Point3::new(u, v, 0.05 * (u * 9.0).sin() + rng.random::<f32>() * 0.001)
+            })
+            .collect();
+        surface.extend((0..3000).map(|i| Point3::new((i % 60) as f32 * 0.004, (i / 60) as f32 * 0.004, 0.6)));
+        surface.extend((0..20).map(|i| Point3::new(3.0 + i as f32, -2.0, 1.0)));
+        for (points, k) in [(random_points(6000, 3), 20), (surface, 21), (random_points(50, 4), 60)] {
+            let index = KdIndex::new(&points).expect("index");
+            let table = KnnTable::new(&points, &index, k).expect("table");
+            let mut seen = 0;
+            // the same distances; the same points, but for those tied at the k-th distance (either
+            // is a k-th nearest); equal distances ordered by index
+            let same = |i: usize, row: &[Neighbor]| {
+                let tree = index.knn(&points[i], k);
+                let dist = |v: &[Neighbor]| v.iter().map(|n| n.dist_sq).collect::<Vec<_>>();
+                assert_eq!(dist(row), dist(&tree), "point {i}");
+                let last = tree.last().map_or(0.0, |n| n.dist_sq);
+                let inner = |v: &[Neighbor]| {
+                    let mut s: Vec<u32> = v.iter().filter(|n| n.dist_sq < last).map(|n| n.index).collect();
+                    s.sort_unstable();
+                    s
+                };
+                assert_eq!(inner(row), inner(&tree), "point {i}");
+                assert!(row.windows(2).all(|w| (w[0].dist_sq, w[0].index) < (w[1].dist_sq, w[1].index)), "point {i}");
+            };
+            index.knn_each(&points, k, |i, row| {
+                same(i, row);
+                seen += 1;
+            });
+            assert_eq!(seen, points.len());
+            for i in 0..points.len() {
+                same(i, table.row(i));
+            }
+        }
     }
 
     #[test]
