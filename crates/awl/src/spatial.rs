@@ -94,7 +94,7 @@ impl KdIndex {
     }
 
     /// The `k` nearest points within `radius_m` (inclusive), nearest first: [`KdIndex::knn`]'s
-    /// answer when at least `k` points lie that close, found with fewer tree nodes visited.
+    /// distances when at least `k` points lie that close, found with fewer tree nodes visited.
     pub fn knn_within(&self, query: &Point3<f32>, k: usize, radius_m: f32) -> Vec<Neighbor> {
         let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
         self.tree
@@ -109,11 +109,12 @@ impl KdIndex {
 
     /// The `k` nearest points of each of `points`, in order, into `emit(i, neighbours)`: the
     /// distances [`KdIndex::knn`] gives, nearest first, equal distances by index (of points tied at
-    /// the `k`-th distance, which ones make the list is the search's choice, as in `knn`). Consecutive points are usually close (raster or voxel order), and the
-    /// previous point's `k`-th distance plus the step between them bounds the next one's (its `k`
-    /// neighbours are at most that far), so each query is a bounded search that visits fewer tree
-    /// nodes. A bound that holds fewer than `k` points (far steps, rounding) falls back to the
-    /// unbounded query.
+    /// the `k`-th distance, which ones make the list is the search's choice, as in `knn`).
+    ///
+    /// Consecutive points are usually close (raster or voxel order), and the previous point's
+    /// `k`-th distance plus the step between them bounds the next one's (its `k` neighbours are at
+    /// most that far), so each query is a bounded search that visits fewer tree nodes. A bound that
+    /// holds fewer than `k` points (rounding) falls back to the unbounded query.
     pub fn knn_each(&self, points: &[Point3<f32>], k: usize, mut emit: impl FnMut(usize, &[Neighbor])) {
         let mut previous: Option<(Point3<f32>, f32)> = None;
         for (i, p) in points.iter().enumerate() {

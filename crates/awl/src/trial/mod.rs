@@ -10,6 +10,7 @@
 //!    is picked 5 cm off the true centre and 3 mm above the face (the method must find the centre),
 //!    a point on a curved surface exactly at the true target (the method snaps it).
 //! 3. Per trial ([`run_shot`]): a shot of the workpiece in a new random placement (seeded per trial),
+//!    taken with the scan's camera (same intrinsics and depth-scale error, [`ShotSetup::camera_seed`]),
 //!    [`crate::pierce::plan`], and the planned point and axis against the shot's truth (robot
 //!    base frame).
 
