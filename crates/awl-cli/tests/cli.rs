@@ -48,9 +48,19 @@ fn simulated_scans_pass_the_independent_check() {
         let report = independent_check(&scan, noise);
         println!("{scene} {noise}:\n{report}");
     }
+    // a shot taken with the camera of the box scan (seed 3): same intrinsics and depth-scale error
     let shot = dir.path().join("shot");
-    ok(&awl(&["simulate", "--shot", "tilt30", "--noise", "realistic", "-o", shot.to_str().expect("utf-8")]));
+    let s = shot.to_str().expect("utf-8");
+    ok(&awl(&["simulate", "--shot", "tilt30", "--noise", "realistic", "--camera-seed", "3", "-o", s]));
     independent_check(&shot, "realistic");
+    let json = |dir: &std::path::Path, file: &str| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.join(file)).expect("json")).expect("json")
+    };
+    let scan = dir.path().join("box-realistic");
+    assert_eq!(json(&shot, "scan.json")["camera"], json(&scan, "scan.json")["camera"]);
+    let scale = |dir: &std::path::Path| json(dir, "truth.json")["depth_scale_error"].as_f64().expect("scale");
+    assert_eq!(scale(&shot), scale(&scan));
+    assert!(scale(&scan) != 0.0);
 }
 
 #[test]
