@@ -58,14 +58,7 @@ impl KdIndex {
     /// The `k` nearest points (fewer if the index is smaller), nearest first; the query point itself
     /// is included when it is in the index.
     pub fn knn(&self, query: &Point3<f32>, k: usize) -> Vec<Neighbor> {
-        let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
-        self.tree
-            .query(&to_array(query))
-            .nearest_n::<SquaredEuclidean<f32>>(k)
-            .execute()
-            .into_iter()
-            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
-            .collect()
+        self.knn_within(query, k, f32::INFINITY)
     }
 
     /// The nearest point, or `None` for an empty index.
@@ -94,7 +87,8 @@ impl KdIndex {
     }
 
     /// The `k` nearest points within `radius_m` (inclusive), nearest first: [`KdIndex::knn`]'s
-    /// distances when at least `k` points lie that close, found with fewer tree nodes visited.
+    /// distances when at least `k` points lie that close, found with fewer tree nodes visited
+    /// (`knn` is this with no bound).
     pub fn knn_within(&self, query: &Point3<f32>, k: usize, radius_m: f32) -> Vec<Neighbor> {
         let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
         self.tree
