@@ -6,8 +6,10 @@
 
 use std::fmt::Write as _;
 
+use nalgebra::Isometry3;
+
 use crate::pierce::plan::PiercePlan;
-use crate::pierce::tool::{tm_pose, ur_pose};
+use crate::pierce::tool::{ToolPoses, tm_pose, ur_pose};
 
 /// Speeds of the generated program.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,9 +28,16 @@ impl Default for ScriptSpeeds {
     }
 }
 
-fn ur(pose: &nalgebra::Isometry3<f64>) -> String {
+fn ur(pose: &Isometry3<f64>) -> String {
     let v = ur_pose(pose);
     format!("p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]", v[0], v[1], v[2], v[3], v[4], v[5])
+}
+
+/// A target's three linear moves with their tool speeds (m/s): to approach at the travel speed, to
+/// pierce and back out to retract at the piercing speed.
+fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f64>, f64); 3] {
+    let (travel, slow) = (speeds.travel_m_s, speeds.pierce_m_s);
+    [(&poses.approach, travel), (&poses.pierce, slow), (&poses.retract, slow)]
 }
 
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
@@ -41,10 +50,9 @@ pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Strin
     for (i, t) in plan.targets.iter().enumerate() {
         let p = t.p_base;
         let _ = writeln!(s, "  # target {i}: {} -> p_base ({:.4}, {:.4}, {:.4}) m", t.surface.spec, p.x, p.y, p.z);
-        let (a, v, slow) = (speeds.accel_m_s2, speeds.travel_m_s, speeds.pierce_m_s);
-        let _ = writeln!(s, "  movel({}, a={a}, v={v})", ur(&t.poses.approach));
-        let _ = writeln!(s, "  movel({}, a={a}, v={slow})", ur(&t.poses.pierce));
-        let _ = writeln!(s, "  movel({}, a={a}, v={slow})", ur(&t.poses.retract));
+        for (pose, v) in strokes(&t.poses, speeds) {
+            let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
+        }
     }
     let _ = writeln!(s, "end");
     let _ = writeln!(s, "awl_pierce()");
@@ -62,7 +70,7 @@ pub fn tmsct_packet(id: &str, script: &str) -> String {
     format!("${body}*{checksum:02X}\r\n")
 }
 
-fn tm_line(pose: &nalgebra::Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
+fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
     let v = tm_pose(pose);
     // speed in mm/s, time to reach it in ms, no blending, precise positioning
     let speed_mm_s = (speed_m_s * 1e3).round().max(1.0);
@@ -78,16 +86,11 @@ fn tm_line(pose: &nalgebra::Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> 
 /// leaves the listen node (`ScriptExit()`). Send them in order to the listen node (TCP port 5890),
 /// each after the previous one's reply.
 pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
-    let (a, v, slow) = (speeds.accel_m_s2, speeds.travel_m_s, speeds.pierce_m_s);
     let mut out = String::new();
     for (i, t) in plan.targets.iter().enumerate() {
-        let lines = [
-            "ChangeBase(\"RobotBase\")".to_string(),
-            tm_line(&t.poses.approach, v, a),
-            tm_line(&t.poses.pierce, slow, a),
-            tm_line(&t.poses.retract, slow, a),
-        ];
-        out.push_str(&tmsct_packet(&format!("awl{i}"), &lines.join("\r\n")));
+        let moves = strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2));
+        let script = format!("ChangeBase(\"RobotBase\")\r\n{}", moves.join("\r\n"));
+        out.push_str(&tmsct_packet(&format!("awl{i}"), &script));
     }
     out.push_str(&tmsct_packet("awlexit", "ScriptExit()"));
     out
