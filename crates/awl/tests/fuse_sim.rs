@@ -160,6 +160,22 @@ fn trials(scene: SceneKind, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f6
         "{name}: axis {:.2} deg > {axis_deg} deg",
         s.max_axis_error_rad.to_degrees()
     );
+    // The axis error's two sources, in their own frames: their sum bounds it when both are right.
+    for r in &rows {
+        let sources = r.locate_rotation_rad + r.model_normal_error_rad;
+        assert!(
+            r.axis_error_rad <= sources + 1e-9,
+            "{name} trial {}: axis {:.3} deg > locate rotation + model normal {:.3} deg",
+            r.trial,
+            r.axis_error_rad.to_degrees(),
+            sources.to_degrees()
+        );
+    }
+    assert!(
+        s.max_locate_rotation_rad <= 1f64.to_radians(),
+        "{name}: located rotation {:.2} deg off",
+        s.max_locate_rotation_rad.to_degrees()
+    );
 }
 
 #[test]

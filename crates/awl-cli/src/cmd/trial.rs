@@ -56,6 +56,8 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "error_m": [e.x, e.y, e.z], "distance_m": e.norm(),
         "tag_only_distance_m": (r.estimate_tag_only - r.truth).norm(),
         "axis_error_deg": r.axis_error_rad.to_degrees(), "refined": r.refined,
+        "locate_rotation_deg": r.locate_rotation_rad.to_degrees(),
+        "model_normal_error_deg": r.model_normal_error_rad.to_degrees(),
     })
 }
 
@@ -145,6 +147,8 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
             "summary": { "trials": s.trials, "mean_m": s.mean_m, "std_m": s.std_m, "max_m": s.max_m,
                          "mean_axis_error_deg": s.mean_axis_error_rad.to_degrees(),
                          "max_axis_error_deg": s.max_axis_error_rad.to_degrees(),
+                         "max_locate_rotation_deg": s.max_locate_rotation_rad.to_degrees(),
+                         "max_model_normal_error_deg": s.max_model_normal_error_rad.to_degrees(),
                          "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined },
             "rows": rows.iter().map(row_json).collect::<Vec<_>>(),
         }),

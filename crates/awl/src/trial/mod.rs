@@ -143,6 +143,12 @@ pub struct TrialRow {
     pub estimate_tag_only: Point3<f64>,
     /// Angle between the planned axis and the true inward normal, radians.
     pub axis_error_rad: f64,
+    /// Where the axis error comes from (it is at most the sum of these two): the rotation error
+    /// of the located `T_base_model`, radians ...
+    pub locate_rotation_rad: f64,
+    /// ... and the angle between the model's normal at the planned point and the true normal at
+    /// the target (model frame, through the model's alignment onto the CAD), radians.
+    pub model_normal_error_rad: f64,
     /// Whether the shot-depth refinement was applied.
     pub refined: bool,
 }
@@ -202,6 +208,8 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
     let surface = SurfaceModel::new(&wp.model)?.with_floor(wp.floor);
     let planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
     let t = &planned.targets[0];
+    let true_base_from_model = sim.truth.world_from_object * wp.object_from_model;
+    let true_n_model = wp.object_from_model.inverse_transform_vector(&truth_target.n_object);
     Ok(TrialRow {
         trial: k,
         shot_seed,
@@ -209,6 +217,8 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         estimate: t.p_base,
         estimate_tag_only: planned.located.base_from_model_tag * t.surface.point,
         axis_error_rad: t.axis_base.angle(&-n_base),
+        locate_rotation_rad: planned.located.base_from_model.rotation.angle_to(&true_base_from_model.rotation),
+        model_normal_error_rad: t.surface.normal.angle(&true_n_model),
         refined: planned.located.refinement.as_ref().is_some_and(|r| r.applied),
     })
 }

@@ -1,6 +1,6 @@
 //! The trials as the paper's Tables I-IV: per trial the true and estimated point (mm, robot base
 //! frame), the per-axis error and the distance; then the average and standard deviation (of the
-//! absolute per-axis errors and of the distance), plus the tool-axis error and the tag-only figures.
+//! absolute per-axis errors and of the distance), plus the tool-axis error, its two sources and the tag-only figures.
 
 use std::fmt::Write as _;
 
@@ -23,6 +23,10 @@ pub struct TrialSummary {
     pub max_axis_error_rad: f64,
     /// Mean tool-axis error, radians.
     pub mean_axis_error_rad: f64,
+    /// Largest rotation error of the located workpiece, radians.
+    pub max_locate_rotation_rad: f64,
+    /// Largest error of the model's normal at the planned point, radians.
+    pub max_model_normal_error_rad: f64,
     /// Mean distance from the tag pose alone, metres.
     pub mean_tag_only_m: f64,
     /// Trials where the shot-depth refinement was applied.
@@ -56,6 +60,8 @@ impl TrialSummary {
             mean_abs_axis_m: [axis(0), axis(1), axis(2)],
             max_axis_error_rad: a.iter().copied().fold(0.0, f64::max),
             mean_axis_error_rad: mean(&a),
+            max_locate_rotation_rad: rows.iter().map(|r| r.locate_rotation_rad).fold(0.0, f64::max),
+            max_model_normal_error_rad: rows.iter().map(|r| r.model_normal_error_rad).fold(0.0, f64::max),
             mean_tag_only_m: mean(&tag),
             refined: rows.iter().filter(|r| r.refined).count(),
         }
@@ -130,6 +136,12 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         mm(sum.mean_tag_only_m),
         sum.refined,
         sum.trials
+    );
+    let _ = writeln!(
+        s,
+        "axis error sources (max): located workpiece rotation {:.2} deg, model normal at the planned point {:.2} deg",
+        sum.max_locate_rotation_rad.to_degrees(),
+        sum.max_model_normal_error_rad.to_degrees()
     );
     s
 }
