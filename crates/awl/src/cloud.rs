@@ -81,12 +81,18 @@ impl PointCloud {
 
     /// The cloud moved by `to_from_from` (positions and normals), computed in f64.
     pub fn transformed(&self, to_from_from: &Isometry3<f64>) -> PointCloud {
-        let points = self.points.iter().map(|p| (to_from_from * p.cast::<f64>()).cast::<f32>()).collect();
-        let normals = self
-            .normals
-            .as_ref()
-            .map(|ns| ns.iter().map(|n| (to_from_from.rotation * n.cast::<f64>()).cast::<f32>()).collect());
-        PointCloud { points, normals, colors: self.colors.clone() }
+        self.clone().into_transformed(to_from_from)
+    }
+
+    /// [`PointCloud::transformed`] in place: no second copy of the cloud.
+    pub fn into_transformed(mut self, to_from_from: &Isometry3<f64>) -> PointCloud {
+        for p in &mut self.points {
+            *p = (to_from_from * p.cast::<f64>()).cast::<f32>();
+        }
+        for n in self.normals.iter_mut().flatten() {
+            *n = (to_from_from.rotation * n.cast::<f64>()).cast::<f32>();
+        }
+        self
     }
 
     /// The points at `indices`, in that order, with their normals and colors.

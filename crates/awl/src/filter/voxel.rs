@@ -97,11 +97,11 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
         }
         None => (Vec::new(), vec![0]),
     };
-    let runs: Vec<&[usize]> = starts.windows(2).map(|w| &order[w[0]..w[1]]).collect();
-    let points = runs.par_iter().map(|run| mean_point(&cloud.points, run)).collect();
-    let normals = cloud.normals.as_ref().map(|ns| runs.par_iter().map(|run| mean_normal(ns, run)).collect());
-    let colors = cloud.colors.as_ref().map(|cs| runs.par_iter().map(|run| mean_color(cs, run)).collect());
-    let points_per_voxel = runs.iter().map(|run| run.len()).collect();
+    let run = |w: &[usize]| &order[w[0]..w[1]];
+    let points = starts.par_windows(2).map(|w| mean_point(&cloud.points, run(w))).collect();
+    let normals = cloud.normals.as_ref().map(|ns| starts.par_windows(2).map(|w| mean_normal(ns, run(w))).collect());
+    let colors = cloud.colors.as_ref().map(|cs| starts.par_windows(2).map(|w| mean_color(cs, run(w))).collect());
+    let points_per_voxel = starts.windows(2).map(|w| w[1] - w[0]).collect();
     Ok(VoxelResult { cloud: PointCloud { points, normals, colors }, points_per_voxel })
 }
 
@@ -195,16 +195,19 @@ impl Grid {
             .collect();
         radix_sort(&mut packed, idx_bits, idx_bits + bx + by + bz);
         let idx_mask = shl(1, idx_bits).wrapping_sub(1);
-        let mut order = Vec::with_capacity(points.len());
         let mut starts = Vec::new();
-        for (pos, &v) in packed.iter().enumerate() {
-            if pos == 0 || (v ^ packed[pos - 1]) & !idx_mask != 0 {
+        let mut previous = None;
+        for (pos, v) in packed.iter_mut().enumerate() {
+            let key = *v & !idx_mask;
+            if previous != Some(key) {
                 starts.push(pos);
+                previous = Some(key);
             }
-            order.push((v & idx_mask) as usize);
+            *v &= idx_mask;
         }
         starts.push(points.len());
-        (order, starts)
+        // Same size and alignment: collected in place, no second buffer.
+        (packed.into_iter().map(|i| i as usize).collect(), starts)
     }
 
     /// The general path for key ranges too wide to pack: sort (key triple, index) pairs.

@@ -7,7 +7,7 @@ use nalgebra::Isometry3;
 use super::config::FuseConfig;
 use super::isolate::{drop_floor, keep_object};
 use super::multiview::register_views;
-use super::prepare::prepare;
+use super::prepare::{Views, prepare};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
@@ -42,6 +42,23 @@ fn timed<T>(
     let (value, points_out) = f()?;
     reports.push(StageReport { name: name.into(), points_in, points_out, seconds: start.elapsed().as_secs_f64() });
     Ok(value)
+}
+
+/// The views at their registered poses, one world-frame cloud of `points` points. Each view is
+/// moved in place and freed once copied, so the views and their merge are never held twice.
+fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) -> PointCloud {
+    let mut all = PointCloud::default();
+    all.points.reserve_exact(points);
+    for (view, pose) in views.into_iter().zip(poses) {
+        if let (Ok(view), Some(pose)) = (view, pose) {
+            if all.is_empty() {
+                all.normals = view.cloud.normals.as_ref().map(|_| Vec::with_capacity(points));
+                all.colors = view.cloud.colors.as_ref().map(|_| Vec::with_capacity(points));
+            }
+            all.extend(&view.cloud.into_transformed(pose));
+        }
+    }
+    all
 }
 
 /// Runs the whole modeling pipeline on `scan` (see the module docs of `pipeline`).
@@ -90,13 +107,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     let merged_in: usize =
         views.iter().zip(&registered.poses).filter_map(|(v, p)| p.and(v.as_ref().ok())).map(|v| v.cloud.len()).sum();
     let merged = timed(&mut stages, "merge", merged_in, || {
-        let mut all = PointCloud::default();
-        for (view, pose) in views.iter().zip(&registered.poses) {
-            if let (Ok(view), Some(pose)) = (view, pose) {
-                all.extend(&view.cloud.transformed(pose));
-            }
-        }
-        let model = downsample(&all, &config.merge_voxel)?;
+        let model = downsample(&world_cloud(views, &registered.poses, merged_in), &config.merge_voxel)?;
         let n = model.len();
         Ok((model, n))
     })?;
