@@ -47,16 +47,16 @@ fn timed<T>(
 /// The views at their registered poses, one world-frame cloud of `points` points. Each view is
 /// moved in place and freed once copied, so the views and their merge are never held twice.
 fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) -> PointCloud {
-    let mut all = PointCloud::default();
-    all.points.reserve_exact(points);
-    for (view, pose) in views.into_iter().zip(poses) {
-        if let (Ok(view), Some(pose)) = (view, pose) {
-            if all.is_empty() {
-                all.normals = view.cloud.normals.as_ref().map(|_| Vec::with_capacity(points));
-                all.colors = view.cloud.colors.as_ref().map(|_| Vec::with_capacity(points));
-            }
-            all.extend(&view.cloud.into_transformed(pose));
-        }
+    let mut clouds =
+        views.into_iter().zip(poses).filter_map(|(view, pose)| Some(view.ok()?.cloud.into_transformed(pose.as_ref()?)));
+    // The first view's buffers, grown once to hold them all.
+    let Some(mut all) = clouds.next() else { return PointCloud::default() };
+    let more = points.saturating_sub(all.len());
+    all.points.reserve_exact(more);
+    all.normals.iter_mut().for_each(|n| n.reserve_exact(more));
+    all.colors.iter_mut().for_each(|c| c.reserve_exact(more));
+    for cloud in clouds {
+        all.extend(&cloud);
     }
     all
 }
