@@ -25,6 +25,9 @@ pub struct TrialArgs {
     /// How the workpiece lies at piercing time: flat (0) or tilted 30 degrees (30).
     #[arg(long, default_value_t = 0)]
     pub tilt: u32,
+    /// The truth target to pierce, by name (box: top-centre; shell: groove, flank). Default: the first.
+    #[arg(long)]
+    pub target: Option<String>,
     /// Number of trials (shots in new random placements).
     #[arg(long, default_value_t = 10)]
     pub trials: usize,
@@ -58,6 +61,7 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "axis_error_deg": r.axis_error_rad.to_degrees(), "refined": r.refined,
         "locate_rotation_deg": r.locate_rotation_rad.to_degrees(),
         "model_normal_error_deg": r.model_normal_error_rad.to_degrees(),
+        "axis_error_at_point_deg": r.axis_error_at_point_rad.to_degrees(),
     })
 }
 
@@ -95,7 +99,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     let fused = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
     let (_, workpiece) = super::fuse::write_outputs(&args.output.join("fuse"), &scan, &fused, None)?;
     let workpiece = workpiece.context("the simulated scan declares no tag")?;
-    let wp = prepare_workpiece(scene, &workpiece, &sim.truth, &sim.cad, &fused.model)
+    let wp = prepare_workpiece(scene, &workpiece, &sim.truth, &sim.cad, &fused.model, args.target.as_deref())
         .context("the workpiece on the model")?;
     say(format!(
         "[2/3] scanned and fused the {} ({} views, {} points, {:.1} s); target `{}` picked as {}",
@@ -149,6 +153,8 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
                          "max_axis_error_deg": s.max_axis_error_rad.to_degrees(),
                          "max_locate_rotation_deg": s.max_locate_rotation_rad.to_degrees(),
                          "max_model_normal_error_deg": s.max_model_normal_error_rad.to_degrees(),
+                         "mean_axis_error_at_point_deg": s.mean_axis_error_at_point_rad.to_degrees(),
+                         "max_axis_error_at_point_deg": s.max_axis_error_at_point_rad.to_degrees(),
                          "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined },
             "rows": rows.iter().map(row_json).collect::<Vec<_>>(),
         }),

@@ -226,6 +226,15 @@ pub fn simulated_camera(seed: u64) -> DepthCamera {
     DepthCamera { intrinsics, depth_scale: 0.001, depth_min_m: 0.2, depth_max_m: 3.0 }
 }
 
+/// The point of the true surface of `scene`'s workpiece nearest `p_object` and the outward unit
+/// normal there, object frame (the dome: its top surface, away from the rim).
+pub fn nearest_surface(
+    scene: SceneKind,
+    p_object: &nalgebra::Point3<f64>,
+) -> (nalgebra::Point3<f64>, nalgebra::Vector3<f64>) {
+    workpiece::nearest_surface(scene, p_object)
+}
+
 /// Simulates a scan or shot.
 ///
 /// # Errors

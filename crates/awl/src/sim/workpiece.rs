@@ -55,8 +55,59 @@ pub(crate) fn workpiece(kind: SceneKind) -> Workpiece {
     }
 }
 
+/// The box's size (x, y, z), metres.
+const BOX: (f64, f64, f64) = (0.485, 0.48, 0.30);
+/// The cylinder's radius and height, metres.
+const CYLINDER: (f64, f64) = (0.15, 0.70);
+
+/// The point of `kind`'s true surface nearest `p` and the outward normal there (object frame):
+/// exact for the box's faces and the cylinder's side and top; on the dome, the top surface's
+/// nearest point by Gauss-Newton on its height field (good away from the rim).
+pub(crate) fn nearest_surface(kind: SceneKind, p: &Point3<f64>) -> (Point3<f64>, Vector3<f64>) {
+    match kind {
+        SceneKind::Box => {
+            let (w, d, h) = BOX;
+            let clamp = |q: Point3<f64>| Point3::new(q.x.clamp(0.0, w), q.y.clamp(0.0, d), q.z.clamp(0.0, h));
+            let faces = [
+                (Point3::new(0.0, p.y, p.z), -Vector3::x()),
+                (Point3::new(w, p.y, p.z), Vector3::x()),
+                (Point3::new(p.x, 0.0, p.z), -Vector3::y()),
+                (Point3::new(p.x, d, p.z), Vector3::y()),
+                (Point3::new(p.x, p.y, h), Vector3::z()),
+            ];
+            faces
+                .into_iter()
+                .map(|(q, n)| (clamp(q), n))
+                .min_by(|a, b| (a.0 - p).norm().total_cmp(&(b.0 - p).norm()))
+                .unwrap_or((*p, Vector3::z()))
+        }
+        SceneKind::Shell => {
+            let s = SHELL;
+            let surface = |x: f64, y: f64| Point3::new(s.a + x, s.b + y, s.height(x, y));
+            let (mut x, mut y) = (p.x - s.a, p.y - s.b);
+            for _ in 0..20 {
+                let e = 1e-6;
+                let q = surface(x, y);
+                let tx = (surface(x + e, y) - surface(x - e, y)) / (2.0 * e);
+                let ty = (surface(x, y + e) - surface(x, y - e)) / (2.0 * e);
+                let j = nalgebra::Matrix3x2::from_columns(&[tx, ty]);
+                let Some(step) = (j.transpose() * j).try_inverse().map(|m| m * j.transpose() * (p - q)) else { break };
+                (x, y) = (x + step.x, y + step.y);
+            }
+            (surface(x, y), s.normal(x, y))
+        }
+        SceneKind::Cylinder => {
+            let (r, h) = CYLINDER;
+            let radial = Vector3::new(p.x - r, p.y - r, 0.0).try_normalize(1e-12).unwrap_or_else(Vector3::x);
+            let side = Point3::new(r + radial.x * r, r + radial.y * r, p.z.clamp(0.0, h));
+            let top = Point3::new(p.x, p.y, h);
+            if (side - p).norm() <= (top - p).norm() { (side, radial) } else { (top, Vector3::z()) }
+        }
+    }
+}
+
 fn box_workpiece() -> Workpiece {
-    let (w, d, h) = (0.485, 0.48, 0.30);
+    let (w, d, h) = BOX;
     Workpiece {
         cad: cuboid(Point3::origin(), Point3::new(w, d, h)),
         centre: Point3::new(w / 2.0, d / 2.0, h / 2.0),
@@ -83,12 +134,16 @@ fn shell_workpiece() -> Workpiece {
         radius: s.a,
         object_from_tag: tag_frame(on_surface(tag_at.0, tag_at.1), s.normal(tag_at.0, tag_at.1), Vector3::z()),
         tag_size: 0.09,
-        targets: vec![Target { name: "groove".into(), p: on_surface(s.groove_x, 0.0), n: s.normal(s.groove_x, 0.0) }],
+        // the groove's bottom turns 4 degrees per mm; the flank, 0.35 degrees per mm (radius ~0.16 m)
+        targets: vec![
+            Target { name: "groove".into(), p: on_surface(s.groove_x, 0.0), n: s.normal(s.groove_x, 0.0) },
+            Target { name: "flank".into(), p: on_surface(0.08, 0.04), n: s.normal(0.08, 0.04) },
+        ],
     }
 }
 
 fn cylinder_workpiece() -> Workpiece {
-    let (r, h) = (0.15, 0.70);
+    let (r, h) = CYLINDER;
     Workpiece {
         cad: cylinder(r, r, r, h, 256),
         centre: Point3::new(r, r, 0.35),
@@ -103,6 +158,26 @@ fn cylinder_workpiece() -> Workpiece {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nearest_surface_points_lie_on_the_surface_along_their_normal() {
+        // a point 3 mm off each target along its normal and 1 mm aside comes back to the surface
+        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder] {
+            let wp = workpiece(kind);
+            for t in &wp.targets {
+                let aside = t.n.cross(&Vector3::new(0.3, 0.5, 0.8)).normalize() * 0.001;
+                let p = t.p + t.n * 0.003 + aside;
+                let (q, n) = nearest_surface(kind, &p);
+                // p - q is along the normal at q, 3 mm (to first order), and q is 1 mm from the target
+                assert!((p - q).normalize().angle(&n) < 0.01, "{kind:?}: {:.4} rad", (p - q).normalize().angle(&n));
+                assert!(((p - q).norm() - 0.003).abs() < 2e-4, "{kind:?}: {:.5} m", (p - q).norm());
+                assert!(((q - t.p).norm() - 0.001).abs() < 3e-4, "{kind:?}: {:.5} m", (q - t.p).norm());
+                // the point on the surface is its own nearest, with the target's normal at the target
+                let (q0, n0) = nearest_surface(kind, &t.p);
+                assert!((q0 - t.p).norm() < 1e-7 && n0.angle(&t.n) < 1e-6, "{kind:?}");
+            }
+        }
+    }
 
     #[test]
     fn tag_frames_are_right_handed_with_y_up() {

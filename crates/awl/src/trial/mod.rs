@@ -11,8 +11,9 @@
 //!    a point on a curved surface exactly at the true target (the method snaps it).
 //! 3. Per trial ([`run_shot`]): a shot of the workpiece in a new random placement (seeded per trial),
 //!    taken with the scan's camera (same intrinsics and depth-scale error, [`ShotSetup::camera_seed`]),
-//!    [`crate::pierce::plan`], and the planned point and axis against the shot's truth (robot
-//!    base frame).
+//!    [`crate::pierce::plan`], and the planned point and axis against the shot's truth (robot base
+//!    frame): the axis against the true normal at the target, and against the true normal where
+//!    the tool meets the surface (the true surface's point nearest the planned one).
 
 mod table;
 
@@ -29,7 +30,7 @@ use crate::io::truth::{Truth, TruthTarget};
 use crate::mesh::TriMesh;
 use crate::pierce::{PierceParams, plan};
 use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
-use crate::sim::{SceneKind, ShotPose, SimParams, rig_ee_from_camera, simulate, write_simulation};
+use crate::sim::{SceneKind, ShotPose, SimParams, nearest_surface, rig_ee_from_camera, simulate, write_simulation};
 use crate::transform::pose_difference;
 use crate::workpiece::{FloorPlane, SurfaceModel, TargetSpec, Workpiece};
 
@@ -98,22 +99,26 @@ pub fn pick_target(scene: SceneKind, target: &TruthTarget, object_from_model: &I
     }
 }
 
-/// The target on the fused `model` whose tag `wp` gives ([`crate::workpiece::workpiece_from_fuse`]; module docs).
+/// The target `target_name` of the truth (its first when `None`) on the fused `model` whose tag `wp` gives ([`crate::workpiece::workpiece_from_fuse`]; module docs).
 ///
 /// # Errors
-/// [`Error::Invalid`] when no view saw the tag, or the truth has no target; any error of the
-/// alignment onto the CAD.
+/// [`Error::Invalid`] when no view saw the tag, or the truth has no (such) target; any error of
+/// the alignment onto the CAD.
 pub fn prepare_workpiece(
     scene: SceneKind,
     wp: &Workpiece,
     truth: &Truth,
     cad: &TriMesh,
     model: &PointCloud,
+    target_name: Option<&str>,
 ) -> Result<TrialWorkpiece> {
     let world_from_tag = wp
         .world_from_tag
         .ok_or_else(|| Error::invalid("workpiece", format!("no tag pose: {}", wp.warnings.join("; "))))?;
-    let target = truth.targets.first().cloned().ok_or_else(|| Error::invalid("truth.json targets", "none"))?;
+    let names: Vec<&str> = truth.targets.iter().map(|t| t.name.as_str()).collect();
+    let target = truth.targets.iter().find(|t| target_name.is_none_or(|n| n == t.name)).cloned().ok_or_else(|| {
+        Error::invalid("truth.json targets", format!("no target {} (has {names:?})", target_name.unwrap_or("at all")))
+    })?;
     let start = truth.world_from_object.inverse();
     let object_from_model = evaluate(model, cad, Some(&start), &EvaluateParams::default())?.object_from_model;
     let spec = pick_target(scene, &target, &object_from_model);
@@ -151,6 +156,9 @@ pub struct TrialRow {
     pub model_normal_error_rad: f64,
     /// Whether the shot-depth refinement was applied.
     pub refined: bool,
+    /// Angle between the planned axis and the true inward normal at the true surface's point
+    /// nearest the planned point (where the tool meets the surface), radians.
+    pub axis_error_at_point_rad: f64,
 }
 
 impl TrialRow {
@@ -210,6 +218,9 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
     let t = &planned.targets[0];
     let true_base_from_model = sim.truth.world_from_object * wp.object_from_model;
     let true_n_model = wp.object_from_model.inverse_transform_vector(&truth_target.n_object);
+    let object_from_base = sim.truth.world_from_object.inverse();
+    let (_, n_object_at_point) = nearest_surface(scene, &(object_from_base * t.p_base));
+    let n_base_at_point = sim.truth.world_from_object.rotation * n_object_at_point;
     Ok(TrialRow {
         trial: k,
         shot_seed,
@@ -220,5 +231,6 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         locate_rotation_rad: planned.located.base_from_model.rotation.angle_to(&true_base_from_model.rotation),
         model_normal_error_rad: t.surface.normal.angle(&true_n_model),
         refined: planned.located.refinement.as_ref().is_some_and(|r| r.applied),
+        axis_error_at_point_rad: t.axis_base.angle(&-n_base_at_point),
     })
 }

@@ -31,6 +31,10 @@ pub struct TrialSummary {
     pub mean_tag_only_m: f64,
     /// Trials where the shot-depth refinement was applied.
     pub refined: usize,
+    /// Mean and largest axis error against the true normal where the tool meets the surface, radians.
+    pub mean_axis_error_at_point_rad: f64,
+    /// ...
+    pub max_axis_error_at_point_rad: f64,
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -64,6 +68,8 @@ impl TrialSummary {
             max_model_normal_error_rad: rows.iter().map(|r| r.model_normal_error_rad).fold(0.0, f64::max),
             mean_tag_only_m: mean(&tag),
             refined: rows.iter().filter(|r| r.refined).count(),
+            mean_axis_error_at_point_rad: mean(&rows.iter().map(|r| r.axis_error_at_point_rad).collect::<Vec<_>>()),
+            max_axis_error_at_point_rad: rows.iter().map(|r| r.axis_error_at_point_rad).fold(0.0, f64::max),
         }
     }
 }
@@ -142,6 +148,12 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         "axis error sources (max): located workpiece rotation {:.2} deg, model normal at the planned point {:.2} deg",
         sum.max_locate_rotation_rad.to_degrees(),
         sum.max_model_normal_error_rad.to_degrees()
+    );
+    let _ = writeln!(
+        s,
+        "axis error against the true normal where the tool meets the surface: mean {:.2} deg, max {:.2} deg",
+        sum.mean_axis_error_at_point_rad.to_degrees(),
+        sum.max_axis_error_at_point_rad.to_degrees()
     );
     s
 }
