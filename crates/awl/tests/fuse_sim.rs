@@ -112,6 +112,7 @@ fn one_and_two_threads_give_the_same_model_bit_for_bit() {
 
 static BOX_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();
 static SHELL_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();
+static FLANK_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();
 
 /// Trials of the piercing workflow (`awl::trial`) on the seed-1 scan of `scene`: a hand-eye
 /// calibrated from 20 simulated poses, `n` shots in random placements, each planned from its tag
@@ -119,13 +120,22 @@ static SHELL_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();
 /// the true normal (the reference system: about 8 mm). CI runs 5 trials per table to keep the suite
 /// short; `awl trial --trials 10` prints the full tables.
 fn trials(scene: SceneKind, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f64) {
+    trials_at(scene, None, pose, n, mean_mm, axis_deg);
+}
+
+/// [`trials`] on the truth target `target` (the first when `None`).
+fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f64) {
     let f = seed1(scene);
-    let cell = if scene == SceneKind::Box { &BOX_WORKPIECE } else { &SHELL_WORKPIECE };
+    let cell = match (scene, target) {
+        (SceneKind::Box, _) => &BOX_WORKPIECE,
+        (_, Some("flank")) => &FLANK_WORKPIECE,
+        _ => &SHELL_WORKPIECE,
+    };
     let wp = cell.get_or_init(|| {
         let tag = workpiece_from_fuse(&f.scan, &f.out, "model.ply", &WorkpieceParams::default())
             .expect("workpiece")
             .expect("the scan declares a tag");
-        prepare_workpiece(scene, &tag, &f.sim.truth, &f.sim.cad, &f.out.model, None).unwrap_or_else(|e| panic!("{e}"))
+        prepare_workpiece(scene, &tag, &f.sim.truth, &f.sim.cad, &f.out.model, target).unwrap_or_else(|e| panic!("{e}"))
     });
     let hand_eye = calibrate_rig(1, 20).expect("calibration");
     let setup = ShotSetup {
@@ -205,14 +215,27 @@ fn trials_box_tilted_30() {
 
 #[test]
 fn trials_shell_flat() {
-    // measured mean 1.21 mm, max 1.93 mm: issue 5's distance bounds. NOT YET its axis bound: 1.50 deg
-    // (the model's normal at the groove's bottom, where the surface turns 4 deg per mm); asserted
-    // at the measured level
+    // The groove's bottom, where the surface turns 4 deg per mm. measured mean 1.21 mm, max 1.93 mm:
+    // issue 5's distance bounds. NOT its axis bound: 1.50 deg at 10 trials (the model's normal
+    // there, 1.38 deg: a 0.25 mm shift across the groove is 1 deg); asserted at the measured level
     trials(SceneKind::Shell, ShotPose::Flat, 5, 2.0, 2.0);
 }
 
 #[test]
 fn trials_shell_tilted_30() {
-    // measured mean 1.51 mm, max 3.36 mm; NOT YET the axis bound: 1.62 deg
+    // the groove: measured mean 1.51 mm, max 3.36 mm; NOT YET the axis bound: 1.62 deg at 10 trials
     trials(SceneKind::Shell, ShotPose::Tilt30, 5, 2.0, 2.0);
+}
+
+#[test]
+fn trials_shell_flank_flat() {
+    // a gently curved point (0.35 deg per mm): issue 5's bounds, axis included (10 trials: mean
+    // 1.70 mm, max 2.85 mm, axis max 0.87 deg)
+    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Flat, 5, 2.0, 1.0);
+}
+
+#[test]
+fn trials_shell_flank_tilted_30() {
+    // 10 trials: mean 1.56 mm, max 3.13 mm, axis max 0.86 deg
+    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Tilt30, 5, 2.0, 1.0);
 }
