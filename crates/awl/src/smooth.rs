@@ -191,6 +191,28 @@ fn fit_quadric(
     radius_m: f64,
     inv_h2: f64,
 ) -> Option<(f64, Vector3<f64>)> {
+    let c = quadric_coefficients(offsets, origin, n, radius_m, inv_h2)?;
+    let height = c[0];
+    if height.is_nan() || height.abs() > radius_m {
+        return None;
+    }
+    let (u, v) = tangent_frame(n);
+    let inv_r = 1.0 / radius_m;
+    let normal = (n - u * (c[1] * inv_r) - v * (c[2] * inv_r)).normalize();
+    normal.iter().all(|x| x.is_finite()).then_some((height, normal))
+}
+
+/// The weighted least-squares quadric height field `z = c0 + c1 s + c2 t + c3 s² + c4 st + c5 t²`
+/// over the plane through `origin` (relative to the offsets' origin) with unit normal `n`, `s` and
+/// `t` along [`tangent_frame`]`(n)` in units of `radius_m`, weights `exp(-|offset - origin|² inv_h2)`:
+/// the coefficients, or `None` with fewer than 6 offsets or a pivot below [`MIN_PIVOT_RATIO`].
+pub(crate) fn quadric_coefficients(
+    offsets: &[Vector3<f64>],
+    origin: &Vector3<f64>,
+    n: &Vector3<f64>,
+    radius_m: f64,
+    inv_h2: f64,
+) -> Option<[f64; 6]> {
     if offsets.len() < 6 {
         return None;
     }
@@ -225,14 +247,7 @@ fn fit_quadric(
         [4, 7, 8, 11, 12, 13],
         [5, 8, 9, 12, 13, 14],
     ];
-    let m = MOMENT.map(|row| row.map(|k| mom[k]));
-    let c = solve_spd6(m, rhs)?;
-    let height = c[0];
-    if height.is_nan() || height.abs() > radius_m {
-        return None;
-    }
-    let normal = (n - u * (c[1] * inv_r) - v * (c[2] * inv_r)).normalize();
-    normal.iter().all(|x| x.is_finite()).then_some((height, normal))
+    solve_spd6(MOMENT.map(|row| row.map(|k| mom[k])), rhs)
 }
 
 /// `exp(-x)` for `x >= 0` (clamped to 700), relative error below 1e-8: range reduction by ln 2 and a
@@ -249,7 +264,7 @@ fn exp_neg(x: f64) -> f64 {
 }
 
 /// Two unit vectors completing the unit `n` to a right-handed orthonormal frame (u, v, n).
-fn tangent_frame(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+pub(crate) fn tangent_frame(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let u = if n.x.abs() > n.y.abs() {
         Vector3::new(-n.z, 0.0, n.x) / (n.x * n.x + n.z * n.z).sqrt()
     } else {

@@ -227,7 +227,7 @@ fn workpiece_file_errors_name_the_file_and_field() {
 }
 
 /// A noisy height field `z = h(x, y)` on a jittered 2 mm grid over `[-half, half]^2` (seeded), with
-/// its outward (+z side) normals, and the true unit normal of `h` at `(x, y)`.
+/// its outward (+z side) normals.
 fn noisy_surface(h: impl Fn(f64, f64) -> f64, half: f64, sigma_m: f64, seed: u64) -> PointCloud {
     let mut state = seed;
     let mut uniform = || {
@@ -249,6 +249,7 @@ fn noisy_surface(h: impl Fn(f64, f64) -> f64, half: f64, sigma_m: f64, seed: u64
     cloud
 }
 
+/// The true upward unit normal of `h` at `(x, y)`.
 fn height_normal(h: &impl Fn(f64, f64) -> f64, x: f64, y: f64) -> Vector3<f64> {
     let e = 1e-6;
     let dx = (h(x + e, y) - h(x - e, y)) / (2.0 * e);

@@ -115,8 +115,8 @@ pub fn prepare_workpiece(
     let world_from_tag = wp
         .world_from_tag
         .ok_or_else(|| Error::invalid("workpiece", format!("no tag pose: {}", wp.warnings.join("; "))))?;
-    let names: Vec<&str> = truth.targets.iter().map(|t| t.name.as_str()).collect();
     let target = truth.targets.iter().find(|t| target_name.is_none_or(|n| n == t.name)).cloned().ok_or_else(|| {
+        let names: Vec<&str> = truth.targets.iter().map(|t| t.name.as_str()).collect();
         Error::invalid("truth.json targets", format!("no target {} (has {names:?})", target_name.unwrap_or("at all")))
     })?;
     let start = truth.world_from_object.inverse();

@@ -31,9 +31,9 @@ pub struct TrialSummary {
     pub mean_tag_only_m: f64,
     /// Trials where the shot-depth refinement was applied.
     pub refined: usize,
-    /// Mean and largest axis error against the true normal where the tool meets the surface, radians.
+    /// Mean axis error against the true normal where the tool meets the surface, radians.
     pub mean_axis_error_at_point_rad: f64,
-    /// ...
+    /// Largest such error, radians.
     pub max_axis_error_at_point_rad: f64,
 }
 

@@ -12,15 +12,17 @@
 //! `normal_scale_tolerance` of the first's: the widest neighbourhood a quadric still explains
 //! averages the most of the model's noise and wiggles out of the normal, which is then that
 //! quadric's at the point. (Where the surface turns fast, e.g. in a groove, a wider patch takes in
-//! shape a quadric cannot follow, which biases the normal more than the noise does.) Normals are oriented like the model's own normals there (the fuse pipeline orients
-//! them toward the cameras that saw the surface, i.e. outward); a model without normals orients it
-//! away from the model's centroid.
+//! shape a quadric cannot follow, which biases the normal more than the noise does.) Normals are
+//! oriented like the model's own normals there (the fuse pipeline orients them toward the cameras
+//! that saw the surface, i.e. outward); a model without normals orients it away from the model's
+//! centroid.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Point3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use crate::smooth::{quadric_coefficients, tangent_frame};
 use crate::spatial::KdIndex;
 use crate::workpiece::face::FaceParams;
 use crate::workpiece::file::FloorPlane;
@@ -265,39 +267,37 @@ impl<'a> SurfaceModel<'a> {
         best
     }
 
-    /// Weighted quadric height field `h(u, v)` over the model points within `radius` of `q` (and
-    /// within `radius` of its tangent plane `n`; Gaussian weights, sigma = radius / 2): its normal at
-    /// `q` (oriented like `n`), weighted rms residual and largest absolute principal curvature
-    /// (1/m). `None` with fewer than 12 points or a degenerate patch.
+    /// Weighted quadric height field over the model points within `radius` of `q` and within
+    /// `radius` of its tangent plane `n` ([`crate::smooth::quadric_coefficients`]; Gaussian weights,
+    /// sigma = radius / 2): its normal at `q` (oriented like `n`), weighted rms residual and largest
+    /// absolute principal curvature (1/m). `None` with fewer than 12 points or a degenerate patch.
     fn quadric_normal(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Option<(Vector3<f64>, f64, f64)> {
-        let u = n.cross(&Vector3::x()).try_normalize(1e-3).unwrap_or_else(|| n.cross(&Vector3::y()).normalize());
-        let v = n.cross(&u);
-        let sigma2 = (radius / 2.0).powi(2);
-        let rows: Vec<(Vector6<f64>, f64, f64)> = self
+        let offsets: Vec<Vector3<f64>> = self
             .index
             .within(&q.cast::<f32>(), radius as f32)
             .iter()
-            .filter_map(|nb| {
-                let d = self.cloud.points[nb.index as usize].cast::<f64>() - q;
-                let (x, y, h) = (d.dot(&u) / radius, d.dot(&v) / radius, d.dot(n));
-                let w = (-f64::from(nb.dist_sq) / (2.0 * sigma2)).exp();
-                (h.abs() <= radius).then(|| (Vector6::new(1.0, x, y, x * x, x * y, y * y), h, w))
-            })
+            .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
+            .filter(|d| d.dot(n).abs() <= radius)
             .collect();
-        if rows.len() < 12 {
+        if offsets.len() < 12 {
             return None;
         }
-        let (ata, atb) = rows.iter().fold((Matrix6::zeros(), Vector6::zeros()), |(m, b), (a, h, w)| {
-            (m + a * a.transpose() * *w, b + a * (*w * h))
-        });
-        let c = ata.cholesky()?.solve(&atb);
-        let sw: f64 = rows.iter().map(|r| r.2).sum();
-        let rms = (rows.iter().map(|(a, h, w)| w * (h - a.dot(&c)).powi(2)).sum::<f64>() / sw).sqrt();
+        // exp(-|d|^2 inv_h2) with sigma = radius / 2
+        let inv_h2 = 2.0 / (radius * radius);
+        let c = quadric_coefficients(&offsets, &Vector3::zeros(), n, radius, inv_h2)?;
+        let (u, v) = tangent_frame(n);
+        let (mut sum_w, mut sum_wr2) = (0.0, 0.0);
+        for d in &offsets {
+            let (x, y) = (d.dot(&u) / radius, d.dot(&v) / radius);
+            let residual = d.dot(n) - (c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y);
+            let w = (-d.norm_squared() * inv_h2).exp();
+            (sum_w, sum_wr2) = (sum_w + w, sum_wr2 + w * residual * residual);
+        }
         let normal = (n - u * (c[1] / radius) - v * (c[2] / radius)).normalize();
-        // the Hessian of h in metres: [[2 c3, c4], [c4, 2 c5]] / radius^2
+        // the Hessian of the height in metres: [[2 c3, c4], [c4, 2 c5]] / radius^2
         let (a, b, d) = (2.0 * c[3], c[4], 2.0 * c[5]);
         let curvature = ((a + d).abs() / 2.0 + ((a - d) * (a - d) / 4.0 + b * b).sqrt()) / (radius * radius);
-        Some((normal, rms, curvature))
+        Some((normal, (sum_wr2 / sum_w).sqrt(), curvature))
     }
 
     /// The direction the model says is outward near `c`: its normals' mean, or away from the centroid.
