@@ -259,33 +259,38 @@ fn height_normal(h: &impl Fn(f64, f64) -> f64, x: f64, y: f64) -> Vector3<f64> {
 
 #[test]
 fn snapped_normals_average_noise_on_gentle_curves_and_stay_local_on_sharp_ones() {
-    // plane-only normals (no growing quadric) for comparison
-    let plane_only = TargetParams { max_normal_radius_m: 0.0, ..TargetParams::default() };
+    // plane-only normals (no wide quadric) for comparison
+    let plane_only = TargetParams { gentle_normal_radius_m: 0.0, ..TargetParams::default() };
     let angle = |cloud: &PointCloud, h: &dyn Fn(f64, f64) -> f64, x: f64, params: &TargetParams| {
         let surface = SurfaceModel::new(cloud).expect("surface");
         let t = surface.snap(&Point3::new(x, 0.0, h(x, 0.0) + 0.002), params).expect("snap");
         t.normal.angle(&height_normal(&h, t.point.x, t.point.y)).to_degrees()
     };
-    // a sphere of radius 0.16 m (the shell's flank turns 0.35 deg per mm), 0.6 mm noise
+    // a sphere of radius 0.16 m (the shell's flank turns 0.35 deg per mm), 0.6 mm noise: the mean
+    // error over 10 noise draws at two points (one draw says little: the 15 mm plane's error is
+    // 0.44 deg on average but 0.21 deg at x = 0 of seed 7)
     let sphere = |x: f64, y: f64| (0.16f64.powi(2) - x * x - y * y).sqrt();
-    let cloud = noisy_surface(sphere, 0.08, 0.0006, 7);
-    for x in [0.0, 0.03] {
-        let (grown, plane) =
-            (angle(&cloud, &sphere, x, &TargetParams::default()), angle(&cloud, &sphere, x, &plane_only));
-        println!("sphere at x = {x}: grown {grown:.3} deg, plane {plane:.3} deg");
-        // measured 0.139 / 0.104 deg (the 15 mm plane: 0.211 / 0.317)
-        assert!(grown < 0.2, "sphere at x = {x}: {grown:.3} deg");
+    let (mut wide, mut plane) = (0.0, 0.0);
+    for seed in 1..=10 {
+        let cloud = noisy_surface(sphere, 0.08, 0.0006, seed);
+        for x in [0.0, 0.03] {
+            wide += angle(&cloud, &sphere, x, &TargetParams::default()) / 20.0;
+            plane += angle(&cloud, &sphere, x, &plane_only) / 20.0;
+        }
     }
+    println!("sphere: wide quadric {wide:.3} deg, plane {plane:.3} deg (mean of 20)");
+    // measured 0.119 / 0.423 deg
+    assert!(wide < 0.15 && wide < 0.4 * plane, "sphere: {wide:.3} deg (plane {plane:.3})");
     // a Gaussian groove 20 mm deep, sigma 17 mm (the shell's: 4 deg per mm at the bottom), 0.6 mm noise
     let groove = |x: f64, _y: f64| -0.02 * (-0.5 * (x / 0.017f64).powi(2)).exp();
     let cloud = noisy_surface(groove, 0.08, 0.0006, 8);
     for x in [0.0, 0.01] {
-        let (grown, plane) =
+        let (wide, plane) =
             (angle(&cloud, &groove, x, &TargetParams::default()), angle(&cloud, &groove, x, &plane_only));
-        println!("groove at x = {x}: grown {grown:.3} deg, plane {plane:.3} deg");
+        println!("groove at x = {x}: default {wide:.3} deg, plane {plane:.3} deg");
         // a radius of curvature of 14.5 mm at the bottom: the normal stays the 15 mm plane's
         // (measured 1.552 deg at the bottom, 4.175 on the wall; a growing quadric: 0.27 and 3.69 deg
         // here, but 1.1 deg worse at the other simulator's groove, tests/fuse_reference.rs)
-        assert!((grown - plane).abs() < 1e-9, "groove at x = {x}: {grown:.3} deg (plane {plane:.3})");
+        assert!((wide - plane).abs() < 1e-9, "groove at x = {x}: {wide:.3} deg (plane {plane:.3})");
     }
 }

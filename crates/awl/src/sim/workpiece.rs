@@ -128,7 +128,7 @@ fn shell_workpiece() -> Workpiece {
     let on_surface = |xc: f64, yc: f64| Point3::new(s.a + xc, s.b + yc, s.height(xc, yc));
     let tag_at = (0.0, -0.8 * s.b);
     Workpiece {
-        cad: s.mesh(110, 256),
+        cad: s.mesh(440, 512),
         centre: Point3::new(s.a, s.b, 0.15),
         footprint: [0.0, 0.0, 2.0 * s.a, 2.0 * s.b],
         radius: s.a,
