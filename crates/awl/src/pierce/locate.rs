@@ -28,12 +28,17 @@ use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetectio
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ShotRefineParams {
-    /// Voxel size of the shot's merged points, metres. Default 0.003.
+    /// Voxel size of the shot's merged points, metres. Default 0.002: the ICP's finest level; with
+    /// every point kept (`icp.max_source_points` 200 000), 3 simulated shell runs (30 shots, tilted
+    /// 30 deg) located the flank 1.34-1.58 mm mean / 2.68 max instead of 1.64-2.00 / 4.29 with 3 mm
+    /// voxels and 20 000 points (the located rotation: 0.92 deg max instead of 1.46). Finer voxels
+    /// gained nothing more.
     pub voxel_m: f64,
     /// Shot points farther than this from the model placed by the tag are left out (floor,
     /// support, clutter), metres. Default 0.03.
     pub crop_m: f64,
-    /// The ICP schedule. Default: 6 mm voxels / 30 mm gate, 3 / 10, 2 / 4; 40 iterations each.
+    /// The ICP schedule. Default: 6 mm voxels / 30 mm gate, 3 / 10, 2 / 4; 40 iterations each;
+    /// up to 200 000 shot points per level.
     pub icp: IcpParams,
     /// At least this many shot points must remain after the crop. Default 500.
     pub min_points: usize,
@@ -50,10 +55,11 @@ impl Default for ShotRefineParams {
         let level =
             |voxel_m: f64, max_correspondence_m: f64| IcpLevel { voxel_m, max_correspondence_m, max_iterations: 40 };
         Self {
-            voxel_m: 0.003,
+            voxel_m: 0.002,
             crop_m: 0.03,
             icp: IcpParams {
                 levels: vec![level(0.006, 0.03), level(0.003, 0.01), level(0.002, 0.004)],
+                max_source_points: 200_000,
                 ..IcpParams::default()
             },
             min_points: 500,
