@@ -196,10 +196,16 @@ fn fit_quadric(
     if height.is_nan() || height.abs() > radius_m {
         return None;
     }
+    quadric_normal(&c, n, radius_m).map(|normal| (height, normal))
+}
+
+/// The unit normal at the origin of the height field `c` ([`quadric_coefficients`] over the plane
+/// with normal `n`, units of `radius_m`), oriented like `n`; `None` when not finite.
+pub(crate) fn quadric_normal(c: &[f64; 6], n: &Vector3<f64>, radius_m: f64) -> Option<Vector3<f64>> {
     let (u, v) = tangent_frame(n);
     let inv_r = 1.0 / radius_m;
     let normal = (n - u * (c[1] * inv_r) - v * (c[2] * inv_r)).normalize();
-    normal.iter().all(|x| x.is_finite()).then_some((height, normal))
+    normal.iter().all(|x| x.is_finite()).then_some(normal)
 }
 
 /// The weighted least-squares quadric height field `z = c0 + c1 s + c2 t + c3 s² + c4 st + c5 t²`

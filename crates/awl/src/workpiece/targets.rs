@@ -4,8 +4,8 @@
 //!
 //! Snapping is an MLS-style projection: the model points within `radius_m` of the current estimate
 //! (Gaussian weights, sigma = `radius_m / 2`) give a weighted least-squares plane; the picked point
-//! is projected onto it, and the neighbourhood is re-centred there (3 rounds). The normal: a second
-//! such plane over `normal_radius_m` at the placed point gives the normal. Where the surface turns
+//! is projected onto it, and the neighbourhood is re-centred there (3 rounds). The normal is that of
+//! a second such plane over `normal_radius_m` at the placed point. Where the surface turns
 //! slowly, the normal is instead that of a weighted quadric height field over the wider
 //! `gentle_normal_radius_m` (fitted twice, the second time in the first one's frame; "slowly":
 //! that quadric has no radius of curvature below `min_curvature_radius_m`): a quadric follows a
@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::smooth::{quadric_coefficients, tangent_frame};
+use crate::smooth::{quadric_coefficients, quadric_normal};
 use crate::spatial::KdIndex;
 use crate::workpiece::face::FaceParams;
 use crate::workpiece::file::FloorPlane;
@@ -249,18 +249,18 @@ impl<'a> SurfaceModel<'a> {
         if params.gentle_normal_radius_m <= 0.0 {
             return plane;
         }
-        let wide = |n: &Vector3<f64>| self.quadric_normal(q, n, params.gentle_normal_radius_m);
-        match wide(&plane).and_then(|(n, ..)| wide(&n)) {
-            Some((normal, _, curvature)) if curvature * params.min_curvature_radius_m <= 1.0 => normal,
+        let wide = |n: &Vector3<f64>| self.quadric_at(q, n, params.gentle_normal_radius_m);
+        match wide(&plane).and_then(|(n, _)| wide(&n)) {
+            Some((normal, curvature)) if curvature * params.min_curvature_radius_m <= 1.0 => normal,
             _ => plane,
         }
     }
 
     /// Weighted quadric height field over the model points within `radius` of `q` and within
     /// `radius` of its tangent plane `n` ([`crate::smooth::quadric_coefficients`]; Gaussian weights,
-    /// sigma = radius / 2): its normal at `q` (oriented like `n`), weighted rms residual and largest
-    /// absolute principal curvature (1/m). `None` with fewer than 12 points or a degenerate patch.
-    fn quadric_normal(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Option<(Vector3<f64>, f64, f64)> {
+    /// sigma = radius / 2): its normal at `q` (oriented like `n`) and largest absolute principal
+    /// curvature (1/m). `None` with fewer than 12 points or a degenerate patch.
+    fn quadric_at(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Option<(Vector3<f64>, f64)> {
         let offsets: Vec<Vector3<f64>> = self
             .index
             .within(&q.cast::<f32>(), radius as f32)
@@ -274,19 +274,10 @@ impl<'a> SurfaceModel<'a> {
         // exp(-|d|^2 inv_h2) with sigma = radius / 2
         let inv_h2 = 2.0 / (radius * radius);
         let c = quadric_coefficients(&offsets, &Vector3::zeros(), n, radius, inv_h2)?;
-        let (u, v) = tangent_frame(n);
-        let (mut sum_w, mut sum_wr2) = (0.0, 0.0);
-        for d in &offsets {
-            let (x, y) = (d.dot(&u) / radius, d.dot(&v) / radius);
-            let residual = d.dot(n) - (c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y);
-            let w = (-d.norm_squared() * inv_h2).exp();
-            (sum_w, sum_wr2) = (sum_w + w, sum_wr2 + w * residual * residual);
-        }
-        let normal = (n - u * (c[1] / radius) - v * (c[2] / radius)).normalize();
         // the Hessian of the height in metres: [[2 c3, c4], [c4, 2 c5]] / radius^2
         let (a, b, d) = (2.0 * c[3], c[4], 2.0 * c[5]);
         let curvature = ((a + d).abs() / 2.0 + ((a - d) * (a - d) / 4.0 + b * b).sqrt()) / (radius * radius);
-        Some((normal, (sum_wr2 / sum_w).sqrt(), curvature))
+        Some((quadric_normal(&c, n, radius)?, curvature))
     }
 
     /// The direction the model says is outward near `c`: its normals' mean, or away from the centroid.
