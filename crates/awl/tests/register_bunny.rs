@@ -83,3 +83,32 @@ fn bunny_pairs_from_25mm_5deg_seeds() {
     }
     println!("worst error over 30 runs: {:.3} mm, {:.3} deg", worst.0, worst.1);
 }
+
+#[test]
+fn pre_down_sampled_target_levels_give_the_same_registration() {
+    // register_levels with the target down-sampled at each level is register, bit for bit; a
+    // wrong number of levels is an error
+    use awl::filter::voxel::{VoxelParams, downsample};
+    use awl::registration::register_levels;
+    let poses = conf_poses();
+    let pose = |n: &str| poses.iter().find(|(f, _)| f == n).map(|(_, p)| *p).expect("pose in bun.conf");
+    let (source, target) = (load("bun045.ply"), load("bun000.ply"));
+    let truth = pose("bun000.ply").inverse() * pose("bun045.ply");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let init = truth * perturbation(&mut rng, &centroid(&source), 0.02, 4f64.to_radians());
+    let params = IcpParams::default();
+    let levels: Vec<PointCloud> = params
+        .levels
+        .iter()
+        .map(|l| downsample(&target, &VoxelParams { voxel_size_m: l.voxel_m }).expect("level"))
+        .collect();
+    let refs: Vec<&PointCloud> = levels.iter().collect();
+    let a = register(&source, &target, &init, &params).expect("register");
+    let b = register_levels(&source, &refs, &init, &params).expect("register_levels");
+    assert_eq!(a.target_from_source, b.target_from_source);
+    assert_eq!(a.levels, b.levels);
+    let shift =
+        ((b.target_from_source * Point3::from(centroid(&source))) - (truth * Point3::from(centroid(&source)))).norm();
+    assert!(shift < 1e-3, "{:.3} mm off the truth", shift * 1e3);
+    assert!(register_levels(&source, &refs[1..], &init, &params).is_err());
+}

@@ -17,6 +17,8 @@
 //! Output order is by voxel key: x, then y, then z. Parallel (rayon); the output does not depend
 //! on the number of threads (sort by (key, point index), sums in point-index order).
 
+use std::cmp::Ordering;
+
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -103,6 +105,92 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
     let colors = cloud.colors.as_ref().map(|cs| starts.par_windows(2).map(|w| mean_color(cs, run(w))).collect());
     let points_per_voxel = starts.windows(2).map(|w| w[1] - w[0]).collect();
     Ok(VoxelResult { cloud: PointCloud { points, normals, colors }, points_per_voxel })
+}
+
+/// A voxel down-sampling that grows: adding a cloud gives what down-sampling the accumulated
+/// centroids together with the cloud's points would (each accumulated voxel counting as one point,
+/// so recent clouds weigh more where they overlap, as re-down-sampling a growing model does),
+/// without going over the accumulated voxels again: the added cloud is down-sampled on its own
+/// (one sort of its points), then merged in one pass over both key-ordered lists. Positions match
+/// that down-sampling to f32 rounding; a voxel's normal weighs the added points' unit mean normal by
+/// their count (their sum's direction, not its length). Colors are not kept. Output order is by
+/// voxel key, as [`downsample`]'s.
+///
+/// Voxel keys are not stored: a centroid lies in its voxel (the f32 mean of f32 points lies between
+/// the smallest and the largest of them, per axis, and so does a weighted mean of two centroids),
+/// so its key is recomputed from it.
+#[derive(Debug, Clone)]
+pub struct VoxelAccumulator {
+    params: VoxelParams,
+    cloud: PointCloud,
+}
+
+impl VoxelAccumulator {
+    /// An empty accumulator.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a bad `voxel_size_m`.
+    pub fn new(params: &VoxelParams) -> Result<Self> {
+        params.validate()?;
+        Ok(Self { params: *params, cloud: PointCloud::default() })
+    }
+
+    /// The accumulated voxels: one centroid per occupied voxel, in key order.
+    pub fn cloud(&self) -> &PointCloud {
+        &self.cloud
+    }
+
+    /// Adds `cloud`'s points. Normals are kept when every added cloud has them.
+    ///
+    /// # Errors
+    /// As [`downsample`].
+    pub fn add(&mut self, cloud: &PointCloud) -> Result<()> {
+        let mut added = downsample_with_counts(cloud, &self.params)?;
+        added.cloud.colors = None;
+        if self.cloud.is_empty() {
+            self.cloud = added.cloud;
+            return Ok(());
+        }
+        let (old, new, counts) = (&self.cloud, &added.cloud, &added.points_per_voxel);
+        let with_normals = old.normals.is_some() && new.normals.is_some();
+        let normal = |c: &PointCloud, i: usize| c.normals.as_ref().map_or_else(Vector3::zeros, |n| n[i]);
+        let size = self.params.voxel_size_m;
+        // the voxel of a centroid; in range: the down-sampling above checked the added points
+        let key = |p: &Point3<f32>| [0, 1, 2].map(|a| floor_i64(f64::from(p[a]) / size));
+        let total = old.len() + new.len();
+        let mut points = Vec::with_capacity(total);
+        let mut normals = Vec::with_capacity(if with_normals { total } else { 0 });
+        let (mut a, mut b) = (0, 0);
+        while a < old.len() || b < new.len() {
+            let order = match (old.points.get(a), new.points.get(b)) {
+                (Some(pa), Some(pb)) => key(pa).cmp(&key(pb)),
+                (Some(_), None) => Ordering::Less,
+                _ => Ordering::Greater,
+            };
+            let (p, n) = match order {
+                Ordering::Less => (old.points[a], normal(old, a)),
+                Ordering::Greater => (new.points[b], normal(new, b)),
+                Ordering::Equal => {
+                    // the accumulated centroid as one point, the added voxel as its points
+                    let nb = counts[b] as f64;
+                    let p = (old.points[a].coords.cast::<f64>() + new.points[b].coords.cast::<f64>() * nb) / (1.0 + nb);
+                    let (ua, ub) = (normal(old, a), normal(new, b));
+                    let sum = ua.cast::<f64>() + ub.cast::<f64>() * nb;
+                    let norm = sum.norm();
+                    let n = if norm > NORMAL_CANCEL_RATIO * (1.0 + nb) { (sum / norm).cast::<f32>() } else { ua };
+                    (Point3::from(p.cast::<f32>()), n)
+                }
+            };
+            points.push(p);
+            if with_normals {
+                normals.push(n);
+            }
+            a += usize::from(order != Ordering::Greater);
+            b += usize::from(order != Ordering::Less);
+        }
+        self.cloud = PointCloud { points, normals: with_normals.then_some(normals), colors: None };
+        Ok(())
+    }
 }
 
 /// The occupied key range of a cloud: `lo` is the smallest key per axis, `bits` the bits each
@@ -503,5 +591,46 @@ mod tests {
         assert!(empty.cloud.is_empty() && empty.points_per_voxel.is_empty());
         let bad = PointCloud::from_points(vec![Point3::new(f32::NAN, 0.0, 0.0)]);
         assert!(downsample(&bad, &VoxelParams::default()).is_err());
+    }
+
+    #[test]
+    fn accumulator_matches_down_sampling_the_centroids_with_the_new_points() {
+        // three overlapping clouds with normals: after each add, the accumulator holds
+        // downsample(previous centroids + new points), to f32 rounding, in the same order
+        let params = VoxelParams { voxel_size_m: 0.01 };
+        let clouds: Vec<PointCloud> = (0..3)
+            .map(|i| random_cloud(20 + i, 20_000, Vector3::new(0.03 * i as f32, -0.02, 0.0), 0.5 - 0.3 * i as f32))
+            .collect();
+        let mut acc = VoxelAccumulator::new(&params).expect("accumulator");
+        let mut reference = PointCloud::default();
+        for cloud in &clouds {
+            acc.add(cloud).expect("add");
+            let mut merged = reference.clone();
+            merged.extend(&PointCloud { colors: None, ..cloud.clone() });
+            reference = downsample(&merged, &params).expect("reference");
+            let got = acc.cloud();
+            assert_eq!(got.len(), reference.len());
+            let worst = got.points.iter().zip(&reference.points).map(|(a, b)| (a - b).norm()).fold(0.0, f32::max);
+            assert!(worst < 1e-6, "centroids differ by {worst} m");
+            let (gn, rn) = (got.normals.as_ref().expect("normals"), reference.normals.as_ref().expect("normals"));
+            let worst = gn.iter().zip(rn).map(|(a, b)| (a - b).norm()).fold(0.0, f32::max);
+            let mean = gn.iter().zip(rn).map(|(a, b)| (a - b).norm()).sum::<f32>() / gn.len() as f32;
+            // the added voxel's normals enter as their (unit) mean times their count, not their
+            // sum: the same direction, a little more weight when they disagree (these spread widely)
+            assert!(worst < 0.03 && mean < 0.003, "normals differ by {worst} at most, {mean} on average");
+        }
+        // thread count does not matter
+        let two = in_pool(2, || {
+            let mut a = VoxelAccumulator::new(&params).expect("accumulator");
+            clouds.iter().for_each(|c| a.add(c).expect("add"));
+            a.cloud().clone()
+        });
+        let one = in_pool(1, || {
+            let mut a = VoxelAccumulator::new(&params).expect("accumulator");
+            clouds.iter().for_each(|c| a.add(c).expect("add"));
+            a.cloud().clone()
+        });
+        assert_eq!(one, two);
+        assert!(VoxelAccumulator::new(&VoxelParams { voxel_size_m: 0.0 }).is_err());
     }
 }

@@ -9,8 +9,8 @@ use super::prepare::{PreparedView, Views};
 use super::report::{ViewReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::filter::voxel::{VoxelParams, downsample};
-use crate::registration::{IcpParams, IcpResult, register};
+use crate::filter::voxel::{VoxelAccumulator, VoxelParams, downsample};
+use crate::registration::{IcpParams, IcpResult, register, register_levels};
 use crate::transform::rows_from_isometry;
 
 /// Final poses (`None`: left out) and one report per scan view.
@@ -108,6 +108,29 @@ fn model_of(
     downsample(&model, voxel)
 }
 
+/// The growing model as the ICP sees it: the merged views down-sampled at each ICP level's voxel
+/// size (the model's own voxel size for a level that does not down-sample), each kept up to date
+/// view by view instead of down-sampling the whole model again for every view and level.
+struct LevelModel {
+    levels: Vec<VoxelAccumulator>,
+}
+
+impl LevelModel {
+    fn new(icp: &IcpParams, voxel: &VoxelParams) -> Result<Self> {
+        let at = |v: f64| if v > 0.0 { VoxelParams { voxel_size_m: v } } else { *voxel };
+        let levels = icp.levels.iter().map(|l| VoxelAccumulator::new(&at(l.voxel_m))).collect::<Result<_>>()?;
+        Ok(Self { levels })
+    }
+
+    fn add(&mut self, cloud: &PointCloud) -> Result<()> {
+        self.levels.iter_mut().try_for_each(|l| l.add(cloud))
+    }
+
+    fn levels(&self) -> Vec<&PointCloud> {
+        self.levels.iter().map(VoxelAccumulator::cloud).collect()
+    }
+}
+
 /// The unregistered view whose seed camera is nearest to a merged view's camera (ties: lowest index).
 fn next_view(views: &Views, remaining: &[usize], merged: &[usize]) -> usize {
     let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
@@ -138,11 +161,14 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
     reports[anchor].status = ViewStatus::Anchor;
     reports[anchor].reason = "first usable view: fixes the model frame".into();
     let mut merged = vec![anchor];
-    let mut model = model_of(views, &poses, merged.iter().copied(), voxel)?;
+    let mut model = LevelModel::new(&config.icp, voxel)?;
+    if let Ok(view) = &views[anchor] {
+        model.add(&view.cloud.transformed(&seed_of(anchor)))?;
+    }
     while !remaining.is_empty() {
         let i = remaining.remove(next_view(views, &remaining, &merged));
         let Ok(view) = &views[i] else { continue };
-        let result = register(&view.cloud, &model, &view.seed, &config.icp)?;
+        let result = register_levels(&view.cloud, &model.levels(), &view.seed, &config.icp)?;
         record(&mut reports[i], &result);
         match judge(&config.accept, &result, correction(view, &view.seed, &result.target_from_source)) {
             Ok(()) => {
@@ -158,8 +184,7 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
             }
         }
         if let Some(pose) = poses[i] {
-            model.extend(&view.cloud.transformed(&pose));
-            model = downsample(&model, voxel)?;
+            model.add(&view.cloud.transformed(&pose))?;
             merged.push(i);
         }
     }

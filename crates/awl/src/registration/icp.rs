@@ -8,6 +8,8 @@
 //! - `conditioning` = smallest / largest eigenvalue of the final 6x6 system, rotations scaled by the
 //!   cloud's RMS radius (near 0: the geometry does not constrain some direction, e.g. a flat wall).
 
+use std::borrow::Cow;
+
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
@@ -114,8 +116,12 @@ pub struct IcpResult {
     pub levels: Vec<LevelStats>,
 }
 
-fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<PointCloud> {
-    if voxel_m > 0.0 { downsample(cloud, &VoxelParams { voxel_size_m: voxel_m }) } else { Ok(cloud.clone()) }
+fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<Cow<'_, PointCloud>> {
+    if voxel_m > 0.0 {
+        downsample(cloud, &VoxelParams { voxel_size_m: voxel_m }).map(Cow::Owned)
+    } else {
+        Ok(Cow::Borrowed(cloud))
+    }
 }
 
 /// At most `max` points of `cloud`, taken at an even stride (all of them when it has fewer).
@@ -174,9 +180,9 @@ fn conditioning(sys: &System) -> f64 {
 }
 
 /// One level's down-sampled source, target and target index.
-struct LevelData {
+struct LevelData<'a> {
     src: PointCloud,
-    tgt: PointCloud,
+    tgt: Cow<'a, PointCloud>,
     index: KdIndex,
 }
 
@@ -246,22 +252,57 @@ pub fn register(
     params: &IcpParams,
 ) -> Result<IcpResult> {
     check(params, source, target)?;
+    run(source, init, params, |level| level_cloud(target, params.levels[level].voxel_m))
+}
+
+/// [`register`] to a target given already down-sampled at each level (`target_levels[k]` at
+/// `params.levels[k].voxel_m`, with normals), e.g. kept up to date while a model grows.
+///
+/// # Errors
+/// As [`register`]; [`Error::Invalid`] when there is not one target cloud per level.
+pub fn register_levels(
+    source: &PointCloud,
+    target_levels: &[&PointCloud],
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+) -> Result<IcpResult> {
+    if target_levels.len() != params.levels.len() {
+        return Err(Error::invalid(
+            "ICP target levels",
+            format!("{} target clouds for {} levels", target_levels.len(), params.levels.len()),
+        ));
+    }
+    for target in target_levels {
+        check(params, source, target)?;
+    }
+    run(source, init, params, |level| Ok(Cow::Borrowed(target_levels[level])))
+}
+
+/// The coarse-to-fine loop; `target_at(k)` gives level `k`'s target cloud.
+fn run<'a>(
+    source: &PointCloud,
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+    target_at: impl Fn(usize) -> Result<Cow<'a, PointCloud>> + Sync,
+) -> Result<IcpResult> {
     let mut t = *init;
     let mut levels = Vec::new();
     let mut last = None;
     // A level's clouds and target index do not depend on the pose: the next level's are built
     // while this level iterates (two levels in memory at most).
-    let build = |level: &IcpLevel| -> Result<LevelData> {
-        let src = thin(level_cloud(source, level.voxel_m)?, params.max_source_points);
-        let tgt = level_cloud(target, level.voxel_m)?;
+    let build = |k: usize| -> Result<LevelData<'a>> {
+        let src = thin(level_cloud(source, params.levels[k].voxel_m)?.into_owned(), params.max_source_points);
+        let tgt = target_at(k)?;
         let index = KdIndex::new(&tgt.points)?;
         Ok(LevelData { src, tgt, index })
     };
-    let mut next = params.levels.first().map(build).transpose()?;
+    let mut next = (!params.levels.is_empty()).then(|| build(0)).transpose()?;
     for (k, level) in params.levels.iter().enumerate() {
         let Some(data) = next.take() else { break };
-        let ((moved_to, stats, s), built) =
-            rayon::join(|| run_level(&data, level, params, t), || params.levels.get(k + 1).map(build).transpose());
+        let ((moved_to, stats, s), built) = rayon::join(
+            || run_level(&data, level, params, t),
+            || (k + 1 < params.levels.len()).then(|| build(k + 1)).transpose(),
+        );
         next = built?;
         t = moved_to;
         levels.push(stats);

@@ -6,5 +6,5 @@ pub mod icp;
 pub mod kernel;
 mod solve;
 
-pub use icp::{IcpLevel, IcpParams, IcpResult, LevelStats, register};
+pub use icp::{IcpLevel, IcpParams, IcpResult, LevelStats, register, register_levels};
 pub use kernel::Kernel;
