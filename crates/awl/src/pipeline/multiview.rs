@@ -123,7 +123,8 @@ impl LevelModel {
     }
 
     fn add(&mut self, cloud: &PointCloud) -> Result<()> {
-        self.levels.iter_mut().try_for_each(|l| l.add(cloud))
+        use rayon::prelude::*;
+        self.levels.par_iter_mut().try_for_each(|l| l.add(cloud))
     }
 
     fn levels(&self) -> Vec<&PointCloud> {
