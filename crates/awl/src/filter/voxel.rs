@@ -620,17 +620,12 @@ mod tests {
             assert!(worst < 0.03 && mean < 0.003, "normals differ by {worst} at most, {mean} on average");
         }
         // thread count does not matter
-        let two = in_pool(2, || {
+        let accumulate = || {
             let mut a = VoxelAccumulator::new(&params).expect("accumulator");
             clouds.iter().for_each(|c| a.add(c).expect("add"));
             a.cloud().clone()
-        });
-        let one = in_pool(1, || {
-            let mut a = VoxelAccumulator::new(&params).expect("accumulator");
-            clouds.iter().for_each(|c| a.add(c).expect("add"));
-            a.cloud().clone()
-        });
-        assert_eq!(one, two);
+        };
+        assert_eq!(in_pool(1, &accumulate), in_pool(2, &accumulate));
         assert!(VoxelAccumulator::new(&VoxelParams { voxel_size_m: 0.0 }).is_err());
     }
 }
