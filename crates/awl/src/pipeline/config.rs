@@ -75,6 +75,14 @@ pub struct RegistrationConfig {
     pub refine_rounds: usize,
     /// ICP levels of the refinement rounds (small corrections). Default: 4 mm / 12 mm, 2 mm / 5 mm.
     pub refine_levels: Vec<IcpLevel>,
+    /// Levels of the joint refinement of the anchor and the accepted views after the sequential
+    /// pass (every overlapping pair at once, see `registration::joint`; it uses the ICP's kernel,
+    /// gates and convergence thresholds); empty: none. Default 4 mm / 12 mm, 2 mm / 5 mm. On
+    /// awl's box scans (seeds 1-4) it took the model's RMSE from 1.21 / 0.66 / 0.61 / 2.71 mm to
+    /// 1.14 / 0.80 / 0.78 / 0.99 mm: the sequential pass drifts on some scans (BENCHMARKS.md, 14).
+    pub joint_levels: Vec<IcpLevel>,
+    /// Source points per view and joint level at most. Default 2500.
+    pub joint_source_points: usize,
 }
 
 impl Default for RegistrationConfig {
@@ -97,6 +105,8 @@ impl Default for RegistrationConfig {
             on_reject: RejectPolicy::Exclude,
             refine_rounds: 0,
             refine_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
+            joint_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
+            joint_source_points: 2500,
         }
     }
 }

@@ -94,6 +94,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         let merged = r.poses.iter().filter(|p| p.is_some()).count();
         Ok((r, merged))
     })?;
+    warnings.extend(registered.warnings.iter().cloned());
     for r in &registered.reports {
         match r.status {
             ViewStatus::Excluded => warnings.push(format!("view {} rejected and left out: {}", r.index, r.reason)),
@@ -141,6 +142,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         focus_world: focus.map(|p| [p.x, p.y, p.z]),
         stages,
         views: registered.reports,
+        joint: registered.joint,
         floor,
         clusters,
         model_points: model.len(),

@@ -1,6 +1,7 @@
 //! Registration of all views: the sequential scheme (each view against the growing model, seeded
-//! by its recorded pose, judged by the acceptance rule), then rounds of refining every view
-//! against all the others. The anchor view (the first usable one) fixes the model frame.
+//! by its recorded pose, judged by the acceptance rule), then (optional) rounds of refining every
+//! view against all the others, then the joint refinement of all of them at once (which undoes the
+//! drift of the sequential pass). The anchor view (the first usable one) fixes the model frame.
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -10,13 +11,16 @@ use super::report::{ViewReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelAccumulator, VoxelParams, downsample};
-use crate::registration::{IcpParams, IcpResult, register, register_levels};
+use crate::registration::{IcpParams, IcpResult, JointLevelStats, refine_jointly, register, register_levels};
 use crate::transform::rows_from_isometry;
 
 /// Final poses (`None`: left out) and one report per scan view.
 pub(crate) struct Registered {
     pub poses: Vec<Option<Isometry3<f64>>>,
     pub reports: Vec<ViewReport>,
+    /// The joint refinement's levels (empty when off).
+    pub joint: Vec<JointLevelStats>,
+    pub warnings: Vec<String>,
 }
 
 fn centroid(cloud: &PointCloud) -> Point3<f64> {
@@ -190,6 +194,8 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
         }
     }
     refine(views, config, voxel, anchor, &mut poses, &mut reports)?;
+    let mut warnings = Vec::new();
+    let joint = refine_joint(views, config, anchor, &mut poses, &reports, &mut warnings)?;
     for (i, report) in reports.iter_mut().enumerate() {
         if let (Some(pose), Ok(view)) = (poses[i], &views[i]) {
             let (dt, dr) = correction(view, &view.seed, &pose);
@@ -198,7 +204,7 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
             report.pose = Some(rows_from_isometry(&pose));
         }
     }
-    Ok(Registered { poses, reports })
+    Ok(Registered { poses, reports, joint, warnings })
 }
 
 /// Rounds of registering each accepted view against all the other merged views.
@@ -227,4 +233,51 @@ fn refine(
         }
     }
     Ok(())
+}
+
+/// The joint refinement of the anchor and the accepted views (see `registration::joint`).
+fn refine_joint(
+    views: &Views,
+    config: &RegistrationConfig,
+    anchor: usize,
+    poses: &mut [Option<Isometry3<f64>>],
+    reports: &[ViewReport],
+    warnings: &mut Vec<String>,
+) -> Result<Vec<JointLevelStats>> {
+    if config.joint_levels.is_empty() {
+        return Ok(Vec::new());
+    }
+    let members: Vec<usize> = (0..views.len())
+        .filter(|&i| i == anchor || reports[i].status == ViewStatus::Accepted)
+        .filter(|&i| poses[i].is_some() && views[i].is_ok())
+        .collect();
+    let clouds: Vec<&PointCloud> = members.iter().filter_map(|&i| views[i].as_ref().ok().map(|v| &v.cloud)).collect();
+    let mut joint: Vec<Isometry3<f64>> = members.iter().filter_map(|&i| poses[i]).collect();
+    let fixed = members.iter().position(|&i| i == anchor).unwrap_or(0);
+    let params = IcpParams {
+        levels: config.joint_levels.clone(),
+        max_source_points: config.joint_source_points,
+        ..config.icp.clone()
+    };
+    let stats = refine_jointly(&clouds, &mut joint, fixed, &params)?;
+    // A view the joint step moved farther than its first gate left the basin it started in:
+    // keep the sequential poses.
+    let gate = config.joint_levels[0].max_correspondence_m;
+    let strayed = members.iter().zip(&joint).find_map(|(&i, pose)| {
+        let (view, before) = (views[i].as_ref().ok()?, poses[i]?);
+        let moved = correction(view, &before, pose).0;
+        (moved > gate).then_some((i, moved))
+    });
+    if let Some((i, moved)) = strayed {
+        warnings.push(format!(
+            "joint refinement moved view {i} by {:.1} mm (more than its {:.1} mm gate): sequential poses kept",
+            moved * 1e3,
+            gate * 1e3
+        ));
+        return Ok(stats);
+    }
+    for (&i, pose) in members.iter().zip(joint) {
+        poses[i] = Some(pose);
+    }
+    Ok(stats)
 }

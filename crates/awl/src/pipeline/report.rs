@@ -87,6 +87,9 @@ pub struct FuseReport {
     pub stages: Vec<StageReport>,
     /// Views in scan order.
     pub views: Vec<ViewReport>,
+    /// The joint refinement of the registered views, per level (empty when off).
+    #[serde(default)]
+    pub joint: Vec<crate::registration::JointLevelStats>,
     /// The floor plane removed: unit normal and offset (`n·p + d = 0`), and the points removed.
     pub floor: Option<FloorReport>,
     /// Clusters found and the one kept.

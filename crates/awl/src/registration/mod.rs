@@ -3,8 +3,10 @@
 //! Frames: `target_from_source` maps source points into the target's frame. Units: metres, radians.
 
 pub mod icp;
+pub mod joint;
 pub mod kernel;
 mod solve;
 
 pub use icp::{IcpLevel, IcpParams, IcpResult, LevelStats, register, register_levels};
+pub use joint::{JointLevelStats, refine_jointly};
 pub use kernel::Kernel;

@@ -48,6 +48,7 @@ fn report() -> FuseReport {
             view(1, ViewStatus::Accepted, 12.0),
             view(2, ViewStatus::Excluded, 80.0),
         ],
+        joint: Vec::new(),
         floor: None,
         clusters: None,
         model_points: 400,
