@@ -247,13 +247,14 @@ fn refine_joint(
     if config.joint_levels.is_empty() {
         return Ok(Vec::new());
     }
-    let members: Vec<usize> = (0..views.len())
+    // (view index, view, pose) of the anchor and the accepted views
+    let members: Vec<(usize, &PreparedView, Isometry3<f64>)> = (0..views.len())
         .filter(|&i| i == anchor || reports[i].status == ViewStatus::Accepted)
-        .filter(|&i| poses[i].is_some() && views[i].is_ok())
+        .filter_map(|i| Some((i, views[i].as_ref().ok()?, poses[i]?)))
         .collect();
-    let clouds: Vec<&PointCloud> = members.iter().filter_map(|&i| views[i].as_ref().ok().map(|v| &v.cloud)).collect();
-    let mut joint: Vec<Isometry3<f64>> = members.iter().filter_map(|&i| poses[i]).collect();
-    let fixed = members.iter().position(|&i| i == anchor).unwrap_or(0);
+    let clouds: Vec<&PointCloud> = members.iter().map(|m| &m.1.cloud).collect();
+    let mut joint: Vec<Isometry3<f64>> = members.iter().map(|m| m.2).collect();
+    let fixed = members.iter().position(|m| m.0 == anchor).unwrap_or(0);
     let params = IcpParams {
         levels: config.joint_levels.clone(),
         max_source_points: config.joint_source_points,
@@ -263,8 +264,7 @@ fn refine_joint(
     // A view the joint step moved farther than its first gate left the basin it started in:
     // keep the sequential poses.
     let gate = config.joint_levels[0].max_correspondence_m;
-    let strayed = members.iter().zip(&joint).find_map(|(&i, pose)| {
-        let (view, before) = (views[i].as_ref().ok()?, poses[i]?);
+    let strayed = members.iter().zip(&joint).find_map(|(&(i, view, before), pose)| {
         let moved = correction(view, &before, pose).0;
         (moved > gate).then_some((i, moved))
     });
@@ -276,7 +276,7 @@ fn refine_joint(
         ));
         return Ok(stats);
     }
-    for (&i, pose) in members.iter().zip(joint) {
+    for (&(i, _, _), pose) in members.iter().zip(joint) {
         poses[i] = Some(pose);
     }
     Ok(stats)

@@ -10,11 +10,11 @@
 
 use std::borrow::Cow;
 
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
-use super::solve::{StepParams, System, Target, linearise};
+use super::solve::{StepParams, System, Target, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
@@ -125,7 +125,7 @@ fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<Cow<'_, PointCloud>> 
 }
 
 /// At most `max` points of `cloud`, taken at an even stride (all of them when it has fewer).
-fn thin(cloud: PointCloud, max: usize) -> PointCloud {
+pub(super) fn thin(cloud: PointCloud, max: usize) -> PointCloud {
     if cloud.len() <= max || max == 0 {
         return cloud;
     }
@@ -153,7 +153,7 @@ fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result
 }
 
 /// Moves the source points (and normals) by `t`, in f64.
-fn move_cloud(cloud: &PointCloud, t: &Isometry3<f64>) -> (Vec<Point3<f64>>, Option<Vec<Vector3<f64>>>) {
+pub(super) fn move_cloud(cloud: &PointCloud, t: &Isometry3<f64>) -> (Vec<Point3<f64>>, Option<Vec<Vector3<f64>>>) {
     let points = cloud.points.iter().map(|p| t * p.cast::<f64>()).collect();
     let normals = cloud.normals.as_ref().map(|ns| ns.iter().map(|n| t.rotation * n.cast::<f64>()).collect());
     (points, normals)
@@ -218,12 +218,9 @@ fn run_level(
         iterations += 1;
         sys = Some(s);
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
-        let omega = Vector3::new(delta[0], delta[1], delta[2]) / length;
-        let v = Vector3::new(delta[3], delta[4], delta[5]);
-        let rotation = UnitQuaternion::from_scaled_axis(omega);
-        let about_centre = Translation3::from(centre + v) * rotation * Translation3::from(-centre);
-        t = about_centre * t;
-        if omega.norm() < params.convergence_rotation_rad && v.norm() < params.convergence_translation_m {
+        let (motion, moved_m, turned_rad) = step_motion(&delta, &centre, length);
+        t = motion * t;
+        if turned_rad < params.convergence_rotation_rad && moved_m < params.convergence_translation_m {
             converged = true;
             break;
         }

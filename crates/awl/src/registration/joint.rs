@@ -14,10 +14,11 @@
 //! `Σ w r a` to the `6N` system. Pairs are linearised in parallel and summed in pair order:
 //! the result does not depend on the number of threads.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::icp::{IcpLevel, IcpParams};
+use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
+use super::solve::{StepParams, System, Target, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
@@ -42,19 +43,7 @@ pub struct JointLevelStats {
 struct ViewLevel {
     cloud: PointCloud,
     index: KdIndex,
-    source: Vec<usize>,
-    /// Bounds of the cloud in its camera frame.
-    lo: Point3<f32>,
-    hi: Point3<f32>,
-}
-
-/// One pair's sums.
-#[derive(Clone, Copy)]
-struct PairSums {
-    h: Matrix6<f64>,
-    g: Vector6<f64>,
-    inliers: usize,
-    residual_sq: f64,
+    source: PointCloud,
 }
 
 /// Refines `poses` (`T_world_camera` of each cloud, camera-frame clouds with normals) jointly;
@@ -97,18 +86,8 @@ pub fn refine_jointly(
 fn view_level(cloud: &PointCloud, voxel_m: f64, max_source: usize) -> Result<ViewLevel> {
     let cloud = downsample(cloud, &VoxelParams { voxel_size_m: voxel_m })?;
     let index = KdIndex::new(&cloud.points)?;
-    let n = cloud.len();
-    let source = if n <= max_source || max_source == 0 {
-        (0..n).collect()
-    } else {
-        (0..max_source).map(|i| i * n / max_source).collect()
-    };
-    let inf = f32::INFINITY;
-    let (lo, hi) = cloud
-        .points
-        .iter()
-        .fold((Point3::new(inf, inf, inf), Point3::new(-inf, -inf, -inf)), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
-    Ok(ViewLevel { cloud, index, source, lo, hi })
+    let source = thin(cloud.clone(), max_source);
+    Ok(ViewLevel { cloud, index, source })
 }
 
 fn run_level(
@@ -128,14 +107,20 @@ fn run_level(
     let mut out = JointLevelStats { iterations: 0, converged: false, pairs: 0, inliers: 0, inlier_rmse_m: 0.0 };
     // Each pair's previous correspondences (see `pair_sums`).
     let mut hints: Vec<Vec<u32>> = pairs.iter().map(|&(i, _)| vec![u32::MAX; views[i].source.len()]).collect();
+    let step = StepParams {
+        max_distance_m: level.max_correspondence_m,
+        max_tangential_m: params.max_tangential_voxels.map(|k| k * level.voxel_m),
+        min_normal_cos: params.max_normal_angle_rad.map(f64::cos),
+        kernel: params.kernel,
+        kernel_scale_m: params.kernel_scale_ratio * level.max_correspondence_m,
+        centre,
+        length_m: length,
+    };
     while out.iterations < level.max_iterations {
-        let sums: Vec<Option<PairSums>> = pairs
+        let sums: Vec<Option<System>> = pairs
             .par_iter()
             .zip(hints.par_iter_mut())
-            .map(|(&(i, j), hint)| {
-                let poses = (&poses[i], &poses[j]);
-                pair_sums(&views[i], &views[j], poses, hint, level, params, (&centre, length))
-            })
+            .map(|(&(i, j), hint)| pair_system(&views[i], &views[j], (&poses[i], &poses[j]), hint, &step))
             .collect();
         out.iterations += 1;
         let dim = 6 * n;
@@ -176,13 +161,10 @@ fn run_level(
             if v == fixed {
                 continue;
             }
-            let d = delta.fixed_rows::<6>(6 * v);
-            let omega = Vector3::new(d[0], d[1], d[2]) / length;
-            let t = Vector3::new(d[3], d[4], d[5]);
-            let about_centre =
-                Translation3::from(centre + t) * UnitQuaternion::from_scaled_axis(omega) * Translation3::from(-centre);
-            *pose = about_centre * *pose;
-            largest = (largest.0.max(t.norm()), largest.1.max(omega.norm()));
+            let (motion, moved_m, turned_rad) =
+                step_motion(&delta.fixed_rows::<6>(6 * v).into_owned(), &centre, length);
+            *pose = motion * *pose;
+            largest = (largest.0.max(moved_m), largest.1.max(turned_rad));
         }
         if largest.0 < params.convergence_translation_m && largest.1 < params.convergence_rotation_rad {
             out.converged = true;
@@ -192,69 +174,30 @@ fn run_level(
     out
 }
 
-/// The sums of view `i`'s source points against view `j`; `None` without correspondences.
-///
-/// `previous` holds each source point's correspondence at the previous step (`u32::MAX`: none);
-/// the poses move little between steps, so the distance to it bounds the search (a hair wider,
-/// so that it stays inside): the nearest point is the same, found sooner.
-fn pair_sums(
+/// View `i`'s source points against view `j`: `linearise` in view `j`'s frame (so `previous`,
+/// each source point's correspondence at the previous step, bounds the search as in pairwise ICP),
+/// then turned into the world frame (`a_world = diag(R_j, R_j) a_j`); `None` without
+/// correspondences. `step.centre` is in the world frame.
+fn pair_system(
     vi: &ViewLevel,
     vj: &ViewLevel,
     (world_from_i, world_from_j): (&Isometry3<f64>, &Isometry3<f64>),
     previous: &mut [u32],
-    level: &IcpLevel,
-    params: &IcpParams,
-    (centre, length): (&Vector3<f64>, f64),
-) -> Option<PairSums> {
-    let gate = level.max_correspondence_m;
-    let gate_f = gate as f32;
-    let j_from_i = world_from_j.inverse() * world_from_i;
-    let max_tangential = params.max_tangential_voxels.map(|k| k * level.voxel_m);
-    let min_cos = params.max_normal_angle_rad.map(f64::cos);
-    let scale = params.kernel_scale_ratio * gate;
-    let (ni, nj) = (vi.cloud.normals.as_deref()?, vj.cloud.normals.as_deref()?);
-    let mut s = PairSums { h: Matrix6::zeros(), g: Vector6::zeros(), inliers: 0, residual_sq: 0.0 };
-    for (&k, hint) in vi.source.iter().zip(previous.iter_mut()) {
-        let p_j = j_from_i * vi.cloud.points[k].cast::<f64>();
-        let q = p_j.cast::<f32>();
-        let outside = (0..3).any(|a| q[a] < vj.lo[a] - gate_f || q[a] > vj.hi[a] + gate_f);
-        let radius = match vj.cloud.points.get(*hint as usize) {
-            Some(prev) => ((prev - q).norm() * (1.0 + 1e-4) + 1e-6).min(gate_f),
-            None => gate_f,
-        };
-        let found = if outside { None } else { vj.index.nearest_within(&q, radius) };
-        *hint = found.map_or(u32::MAX, |nb| nb.index);
-        let Some(nb) = found else { continue };
-        let t = vj.cloud.points[nb.index as usize].cast::<f64>();
-        let n = nj[nb.index as usize].cast::<f64>();
-        if let Some(cos) = min_cos {
-            if (j_from_i.rotation * ni[k].cast::<f64>()).dot(&n) < cos {
-                continue;
-            }
-        }
-        let offset = p_j - t;
-        let r = n.dot(&offset);
-        if let Some(max) = max_tangential {
-            if (offset - n * r).norm_squared() > max * max {
-                continue;
-            }
-        }
-        s.inliers += 1;
-        s.residual_sq += r * r;
-        let w = params.kernel.weight(r, scale);
-        if w <= 0.0 {
-            continue;
-        }
-        // World-frame arm and normal.
-        let p_w = world_from_j * p_j;
-        let n_w = world_from_j.rotation * n;
-        let arm = (p_w.coords - centre) / length;
-        let rot = arm.cross(&n_w);
-        let a = Vector6::new(rot.x, rot.y, rot.z, n_w.x, n_w.y, n_w.z);
-        s.h += w * a * a.transpose();
-        s.g += w * r * a;
+    step: &StepParams,
+) -> Option<System> {
+    let j_from_world = world_from_j.inverse();
+    let (moved, moved_normals) = move_cloud(&vi.source, &(j_from_world * world_from_i));
+    let target = Target { points: &vj.cloud.points, normals: vj.cloud.normals.as_deref()?, index: &vj.index };
+    let centre = (j_from_world * Point3::from(step.centre)).coords;
+    let s = linearise(&moved, moved_normals.as_deref(), &target, &StepParams { centre, ..*step }, previous);
+    if s.inliers == 0 {
+        return None;
     }
-    (s.inliers > 0).then_some(s)
+    let r = world_from_j.rotation.to_rotation_matrix().into_inner();
+    let mut b = Matrix6::zeros();
+    b.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    b.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    Some(System { h: b * s.h * b.transpose(), g: b * s.g, ..s })
 }
 
 #[cfg(test)]

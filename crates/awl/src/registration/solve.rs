@@ -3,7 +3,7 @@
 //! The sums are taken per fixed-size chunk in parallel and then added in chunk order, so the
 //! result is bit-identical whatever the number of threads.
 
-use nalgebra::{Matrix6, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::kernel::Kernel;
@@ -59,6 +59,16 @@ pub(crate) struct StepParams {
     pub kernel_scale_m: f64,
     pub centre: Vector3<f64>,
     pub length_m: f64,
+}
+
+/// The motion a solved step stands for: `delta` = (rotation scaled by `length`, translation),
+/// about `centre`; also its translation length (m) and rotation angle (rad).
+pub(crate) fn step_motion(delta: &Vector6<f64>, centre: &Vector3<f64>, length: f64) -> (Isometry3<f64>, f64, f64) {
+    let omega = Vector3::new(delta[0], delta[1], delta[2]) / length;
+    let v = Vector3::new(delta[3], delta[4], delta[5]);
+    let rotation = UnitQuaternion::from_scaled_axis(omega);
+    let about_centre = Translation3::from(centre + v) * rotation * Translation3::from(-centre);
+    (about_centre, v.norm(), omega.norm())
 }
 
 /// Builds the weighted normal equations for moved source points (`moved`, in the target frame,
