@@ -144,12 +144,7 @@ fn cluster(b: Bencher, name: &str, threads: usize) {
 fn smooth(b: Bencher, name: &str, threads: usize) {
     let cloud = voxelised(input(name), MODEL_VOXEL_M);
     let params = MlsParams::default();
-    b.bench(|| {
-        pool(threads).install(|| {
-            let index = KdIndex::new(&cloud.points).expect("index");
-            mls(&cloud, &index, &params).expect("mls")
-        })
-    });
+    b.bench(|| pool(threads).install(|| mls(&cloud, &params).expect("mls")));
 }
 
 macro_rules! input_group {

@@ -23,7 +23,6 @@
 //! scikit-learn's `DBSCAN` and Open3D's `ClusterDBSCAN`: both start clusters from core points in index
 //! order and give a border point to the first cluster that reaches it, i.e. the lowest-numbered one.
 
-use std::ops::Range;
 use std::sync::atomic::{AtomicU8, AtomicU32, Ordering};
 
 use nalgebra::Point3;
@@ -32,6 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::spatial::KdIndex;
+use crate::spatial::cells::CellGrid as Grid;
 
 /// Parameters of [`dbscan`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -158,96 +158,6 @@ fn validate(points: &[Point3<f32>], index: &KdIndex, params: &DbscanParams) -> R
     Ok(eps)
 }
 
-/// Cells per axis at most (21 bits of the sort key each).
-const MAX_CELLS: f64 = (1u64 << 21) as f64 - 4.0;
-
-/// The points sorted by cell: grid positions `s` index `points` and `perm` (the input index).
-struct Grid {
-    points: Vec<[f32; 3]>,
-    perm: Vec<u32>,
-    /// Cell keys `x << 42 | y << 21 | z`, ascending, one per non-empty cell.
-    keys: Vec<u64>,
-    /// Positions of the first point of each cell, then the number of points.
-    starts: Vec<u32>,
-}
-
-impl Grid {
-    /// Cells of side `eps_m * (1 + 1e-6)`: two points whose f32 squared distance passes `<= eps²` are at
-    /// most one cell apart on every axis (cell coordinates are computed in f64).
-    fn new(points: &[Point3<f32>], eps_m: f32) -> Result<Self> {
-        let min = points.iter().fold(points[0], |m, p| m.inf(p)).cast::<f64>();
-        let max = points.iter().fold(points[0], |m, p| m.sup(p)).cast::<f64>();
-        let cell_m = eps_m as f64 * (1.0 + 1e-6);
-        let extent = (max - min).max() / cell_m;
-        if extent.is_nan() || extent >= MAX_CELLS {
-            return Err(Error::invalid(
-                "dbscan eps_m",
-                format!("{eps_m} m is too small for a cloud {} m across (2 M cells per axis at most)", extent * cell_m),
-            ));
-        }
-        // Cell coordinates start at 1, so the cells around any point have non-negative coordinates.
-        let coord = |v: f32, lo: f64| ((v as f64 - lo) / cell_m) as u64 + 1;
-        let mut keyed: Vec<(u64, u32)> = points
-            .par_iter()
-            .enumerate()
-            .map(|(i, p)| (coord(p.x, min.x) << 42 | coord(p.y, min.y) << 21 | coord(p.z, min.z), i as u32))
-            .collect();
-        keyed.par_sort_unstable();
-        let mut keys = Vec::new();
-        let mut starts = Vec::new();
-        for (s, &(key, _)) in keyed.iter().enumerate() {
-            if keys.last() != Some(&key) {
-                keys.push(key);
-                starts.push(s as u32);
-            }
-        }
-        starts.push(keyed.len() as u32);
-        let sorted = keyed.par_iter().map(|&(_, i)| points[i as usize].coords.into()).collect();
-        let perm = keyed.into_iter().map(|(_, i)| i).collect();
-        Ok(Self { points: sorted, perm, keys, starts })
-    }
-
-    fn cell(&self, c: usize) -> Range<usize> {
-        self.starts[c] as usize..self.starts[c + 1] as usize
-    }
-
-    /// Position ranges of the 27 cells around cell `c`, as up to 9 runs of 3 consecutive keys.
-    fn around(&self, c: usize) -> ([Range<usize>; 9], usize) {
-        let key = self.keys[c];
-        let mut runs: [Range<usize>; 9] = Default::default();
-        let mut count = 0;
-        for dx in [0, 1, 2] {
-            for dy in [0, 1, 2] {
-                let mid = (key + (dx << 42) + (dy << 21)) - (1 << 42) - (1 << 21);
-                let lo = self.keys.partition_point(|&k| k < mid - 1);
-                let hi = lo + self.keys[lo..].partition_point(|&k| k <= mid + 1);
-                if lo < hi {
-                    runs[count] = self.starts[lo] as usize..self.starts[hi] as usize;
-                    count += 1;
-                }
-            }
-        }
-        (runs, count)
-    }
-
-    /// Sets `near` to the positions of the points within `eps` (squared: `r2`) of position `s`, itself
-    /// included, given the runs around its cell (branch-free: every candidate is written, the length
-    /// advances only on a hit).
-    fn within(&self, runs: &[Range<usize>], s: usize, r2: f32, near: &mut Vec<u32>) {
-        let q = self.points[s];
-        near.resize(runs.iter().map(ExactSizeIterator::len).sum(), 0);
-        let mut len = 0;
-        for run in runs {
-            for (t, p) in self.points[run.clone()].iter().enumerate() {
-                let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-                near[len] = (run.start + t) as u32;
-                len += usize::from(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= r2);
-            }
-        }
-        near.truncate(len);
-    }
-}
-
 /// Classes of a point: not yet counted, alone within eps, not core, core.
 const UNKNOWN: u8 = 0;
 const ISOLATED: u8 = 1;
@@ -362,7 +272,7 @@ pub fn dbscan(points: &[Point3<f32>], index: &KdIndex, params: &DbscanParams) ->
     if points.is_empty() {
         return Ok(Clustering::default());
     }
-    let grid = Grid::new(points, eps)?;
+    let grid = Grid::new(points, eps, "dbscan eps_m")?;
     let r2 = eps * eps;
     let (class, forest) = classify_and_join(&grid, r2, params.min_points);
     Ok(label(&grid, &class, forest, r2))

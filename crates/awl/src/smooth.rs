@@ -1,9 +1,10 @@
 //! Moving-least-squares smoothing: every point is projected onto a local surface fitted to its
 //! neighbours, and gets that surface's normal.
 //!
-//! Input: a cloud (metres, any frame) and a [`KdIndex`] over exactly its points. Output: a cloud of
-//! the same length and order, colors carried through, normals always present. Parallel over
-//! points; the output does not depend on the number of rayon threads.
+//! Input: a cloud (metres, any frame). Output: a cloud of the same length and order, colors carried
+//! through, normals always present. Neighbours come from a grid of cells of side `radius_m`
+//! (`spatial::cells`: several times faster than k-d tree radius queries), in grid order; parallel
+//! over cells; the output does not depend on the number of rayon threads.
 //!
 //! Per point `p`, with neighbours `N` = the points within `radius_m` of `p` (itself included) and
 //! Gaussian weights `w = exp(-d² / radius_m²)` (PCL's default `sqr_gauss_param = radius²`):
@@ -37,7 +38,7 @@ use serde::{Deserialize, Serialize};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::normals::{Sym3, plane_of};
-use crate::spatial::KdIndex;
+use crate::spatial::cells::CellGrid;
 
 /// The quadratic fit is used only when every Cholesky pivot of its (scaled) normal equations is at
 /// least this fraction of the total weight; below, the neighbourhood is (nearly) a line in the
@@ -110,32 +111,47 @@ enum Outcome {
 ///
 /// # Errors
 /// [`Error::Invalid`] for bad parameters, an inconsistent cloud (see [`PointCloud::validate`]), or
-/// when `index` does not cover exactly the cloud's points.
-pub fn mls(cloud: &PointCloud, index: &KdIndex, params: &MlsParams) -> Result<MlsResult> {
+/// a radius too small for the cloud's extent (more than 2 M cells per axis).
+pub fn mls(cloud: &PointCloud, params: &MlsParams) -> Result<MlsResult> {
     params.validate()?;
     cloud.validate("mls input")?;
-    if index.len() != cloud.len() {
-        return Err(Error::invalid("mls", format!("index has {} points, cloud {}", index.len(), cloud.len())));
+    if cloud.is_empty() {
+        return Ok(MlsResult { cloud: cloud.clone(), unchanged: Vec::new(), plane_only: 0 });
     }
+    let r = params.radius_m as f32;
+    let grid = CellGrid::new(&cloud.points, r, "mls radius_m")?;
     let input_normals = cloud.normals.as_deref();
-    let fitted: Vec<(Point3<f32>, Vector3<f32>, Outcome)> = (0..cloud.len())
+    // per cell, in grid order, then back to input order
+    let by_position: Vec<(Point3<f32>, Vector3<f32>, Outcome)> = (0..grid.keys.len())
         .into_par_iter()
-        .with_min_len(64)
-        .map_init(Vec::new, |buf, i| {
-            let p = &cloud.points[i];
-            let fit = fit_point(&cloud.points, index, p, params, buf);
-            let Some((delta, normal, outcome)) = fit else {
-                let normal = input_normals.map_or_else(Vector3::zeros, |ns| ns[i]);
-                return (*p, normal, Outcome::Unchanged);
-            };
-            let reference = match input_normals.map(|ns| ns[i].cast::<f64>()) {
-                Some(n) if n != Vector3::zeros() => n,
-                _ => -p.coords.cast::<f64>(),
-            };
-            let normal = if normal.dot(&reference) < 0.0 { -normal } else { normal };
-            (Point3::from(p.coords.cast::<f64>() + delta).cast::<f32>(), normal.cast::<f32>(), outcome)
+        .flat_map_iter(|c| {
+            let (runs, count) = grid.around(c);
+            let (mut near, mut buf) = (Vec::new(), Vec::new());
+            grid.cell(c)
+                .map(|s| {
+                    grid.within(&runs[..count], s, r * r, &mut near);
+                    let i = grid.perm[s] as usize;
+                    let p = &cloud.points[i];
+                    let neighbors = near.iter().map(|&t| Point3::from(grid.points[t as usize]));
+                    let fit = fit_point(neighbors, near.len(), p, params, &mut buf);
+                    let Some((delta, normal, outcome)) = fit else {
+                        let normal = input_normals.map_or_else(Vector3::zeros, |ns| ns[i]);
+                        return (*p, normal, Outcome::Unchanged);
+                    };
+                    let reference = match input_normals.map(|ns| ns[i].cast::<f64>()) {
+                        Some(n) if n != Vector3::zeros() => n,
+                        _ => -p.coords.cast::<f64>(),
+                    };
+                    let normal = if normal.dot(&reference) < 0.0 { -normal } else { normal };
+                    (Point3::from(p.coords.cast::<f64>() + delta).cast::<f32>(), normal.cast::<f32>(), outcome)
+                })
+                .collect::<Vec<_>>()
         })
         .collect();
+    let mut fitted = vec![(Point3::origin(), Vector3::zeros(), Outcome::Unchanged); cloud.len()];
+    for (s, f) in by_position.into_iter().enumerate() {
+        fitted[grid.perm[s] as usize] = f;
+    }
     let unchanged = (0..fitted.len()).filter(|&i| fitted[i].2 == Outcome::Unchanged).collect();
     let plane_only = fitted.iter().filter(|f| f.2 == Outcome::Plane).count();
     let (points, normals) = fitted.into_iter().map(|(p, n, _)| (p, n)).unzip();
@@ -144,22 +160,22 @@ pub fn mls(cloud: &PointCloud, index: &KdIndex, params: &MlsParams) -> Result<Ml
 }
 
 /// The displacement of `p` (f64, metres) and the unoriented unit normal of the fitted surface, or
-/// `None` when the point stays as it is. `buf` is scratch space for the neighbour offsets.
+/// `None` when the point stays as it is. `neighbors` are the `count` points within the radius
+/// (`p` included); `buf` is scratch space for their offsets.
 fn fit_point(
-    points: &[Point3<f32>],
-    index: &KdIndex,
+    neighbors: impl Iterator<Item = Point3<f32>>,
+    count: usize,
     p: &Point3<f32>,
     params: &MlsParams,
     buf: &mut Vec<Vector3<f64>>,
 ) -> Option<(Vector3<f64>, Vector3<f64>, Outcome)> {
-    let neighbors = index.within(p, params.radius_m as f32);
-    if neighbors.len() < params.min_neighbors {
+    if count < params.min_neighbors {
         return None;
     }
     let inv_h2 = 1.0 / (params.radius_m * params.radius_m);
     let pd = p.coords.cast::<f64>();
     buf.clear();
-    buf.extend(neighbors.iter().map(|n| points[n.index as usize].coords.cast::<f64>() - pd));
+    buf.extend(neighbors.map(|q| q.coords.cast::<f64>() - pd));
     // Weighted plane: moments about p, then about the weighted centroid.
     let (mut total, mut first, mut second) = (0.0, Vector3::zeros(), Sym3::default());
     for d in buf.iter() {
@@ -324,8 +340,7 @@ mod tests {
     }
 
     fn smooth(cloud: &PointCloud, params: &MlsParams) -> MlsResult {
-        let index = KdIndex::new(&cloud.points).expect("index");
-        mls(cloud, &index, params).expect("mls")
+        mls(cloud, params).expect("mls")
     }
 
     /// A tilted plane through `PLANE_ORIGIN`: `n` points uniform on a `side_m` square, Gaussian noise
@@ -514,10 +529,9 @@ mod tests {
     #[test]
     fn same_output_with_one_and_two_threads() {
         let cloud = PointCloud::from_points(noisy_cap(0.15, 15f64.to_radians(), 1e-3, 14));
-        let index = KdIndex::new(&cloud.points).expect("index");
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-            pool.install(|| mls(&cloud, &index, &MlsParams::default()).expect("mls"))
+            pool.install(|| mls(&cloud, &MlsParams::default()).expect("mls"))
         };
         let (one, two) = (run(1), run(2));
         let bits = |r: &MlsResult| {
@@ -561,16 +575,18 @@ mod tests {
         let empty = smooth(&PointCloud::default(), &MlsParams::default());
         assert!(empty.cloud.is_empty() && empty.unchanged.is_empty());
         let cloud = PointCloud::from_points(vec![Point3::origin(); 4]);
-        let index = KdIndex::new(&cloud.points).expect("index");
         for params in [
             MlsParams { radius_m: 0.0, ..Default::default() },
             MlsParams { radius_m: f64::INFINITY, ..Default::default() },
             MlsParams { min_neighbors: 2, ..Default::default() },
         ] {
-            assert!(matches!(mls(&cloud, &index, &params), Err(Error::Invalid { .. })));
+            assert!(matches!(mls(&cloud, &params), Err(Error::Invalid { .. })));
         }
-        let short = PointCloud::from_points(vec![Point3::origin(); 3]);
-        assert!(mls(&short, &index, &MlsParams::default()).is_err());
+        // 100 km across at a 6 mm radius: too many cells
+        let huge = PointCloud::from_points(vec![Point3::origin(), Point3::new(1e5, 0.0, 0.0)]);
+        assert!(matches!(mls(&huge, &MlsParams::default()), Err(Error::Invalid { .. })));
+        let nan = PointCloud::from_points(vec![Point3::new(f32::NAN, 0.0, 0.0)]);
+        assert!(mls(&nan, &MlsParams::default()).is_err());
         let params: MlsParams = serde_json::from_str(r#"{"radius_m": 0.01}"#).expect("json");
         assert_eq!(params, MlsParams { radius_m: 0.01, ..Default::default() });
         assert!(serde_json::from_str::<MlsParams>(r#"{"radius": 0.01}"#).is_err());

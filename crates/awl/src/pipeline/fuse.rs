@@ -14,7 +14,6 @@ use crate::error::{Error, Result};
 use crate::filter::voxel::downsample;
 use crate::io::scan::Scan;
 use crate::smooth::mls;
-use crate::spatial::KdIndex;
 
 /// Stage notifications for a progress display: `(stage name, stages done, stages in all)`.
 pub type Progress<'a> = &'a (dyn Fn(&str, usize, usize) + Sync);
@@ -127,8 +126,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     progress("smooth", 7, STAGES);
     let model = match &config.smoothing {
         Some(params) => timed(&mut stages, "mls", isolated.len(), || {
-            let index = KdIndex::new(&isolated.points)?;
-            let smoothed = mls(&isolated, &index, params)?.cloud;
+            let smoothed = mls(&isolated, params)?.cloud;
             let n = smoothed.len();
             Ok((smoothed, n))
         })?,

@@ -14,7 +14,7 @@ use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
-use super::solve::{StepParams, System, Target, linearise, step_motion};
+use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
@@ -183,7 +183,7 @@ fn conditioning(sys: &System) -> f64 {
 struct LevelData<'a> {
     src: PointCloud,
     tgt: Cow<'a, PointCloud>,
-    index: KdIndex,
+    index: TargetIndex,
 }
 
 /// Gauss-Newton iterations of one level from `t`: the moved pose, the level's statistics and its
@@ -290,7 +290,7 @@ fn run<'a>(
     let build = |k: usize| -> Result<LevelData<'a>> {
         let src = thin(level_cloud(source, params.levels[k].voxel_m)?.into_owned(), params.max_source_points);
         let tgt = target_at(k)?;
-        let index = KdIndex::new(&tgt.points)?;
+        let index = TargetIndex::Tree(KdIndex::new(&tgt.points)?);
         Ok(LevelData { src, tgt, index })
     };
     let mut next = (!params.levels.is_empty()).then(|| build(0)).transpose()?;

@@ -18,11 +18,10 @@ use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
-use super::solve::{StepParams, System, Target, linearise, step_motion};
+use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
-use crate::spatial::KdIndex;
 
 /// What [`refine_jointly`] did, per level.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -42,7 +41,7 @@ pub struct JointLevelStats {
 /// One view at one level: its down-sampled cloud (camera frame), its tree, its source points.
 struct ViewLevel {
     cloud: PointCloud,
-    index: KdIndex,
+    index: TargetIndex,
     source: PointCloud,
 }
 
@@ -85,7 +84,7 @@ pub fn refine_jointly(
 
 fn view_level(cloud: &PointCloud, voxel_m: f64, max_source: usize) -> Result<ViewLevel> {
     let cloud = downsample(cloud, &VoxelParams { voxel_size_m: voxel_m })?;
-    let index = KdIndex::new(&cloud.points)?;
+    let index = TargetIndex::of_view(&cloud.points)?;
     let source = thin(cloud.clone(), max_source);
     Ok(ViewLevel { cloud, index, source })
 }

@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3
 use rayon::prelude::*;
 
 use super::kernel::Kernel;
-use crate::spatial::KdIndex;
+use crate::spatial::{KdIndex, Neighbor, ProjectiveGrid};
 
 const CHUNK: usize = 2048;
 
@@ -15,7 +15,32 @@ const CHUNK: usize = 2048;
 pub(crate) struct Target<'a> {
     pub points: &'a [Point3<f32>],
     pub normals: &'a [nalgebra::Vector3<f32>],
-    pub index: &'a KdIndex,
+    pub index: &'a TargetIndex,
+}
+
+/// A target's nearest-neighbour search: a k-d tree, or the projective grid of a view kept in its
+/// camera frame (faster for ICP's bounded queries, and instant for points outside the view).
+pub(crate) enum TargetIndex {
+    Tree(KdIndex),
+    Grid(ProjectiveGrid),
+}
+
+impl TargetIndex {
+    /// The grid when every point is in front of the camera (z > 0), else the tree.
+    pub fn of_view(points: &[Point3<f32>]) -> crate::error::Result<Self> {
+        if points.iter().all(|p| p.z > 0.0) {
+            ProjectiveGrid::new(points).map(Self::Grid)
+        } else {
+            KdIndex::new(points).map(Self::Tree)
+        }
+    }
+
+    fn nearest_within(&self, q: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
+        match self {
+            Self::Tree(t) => t.nearest_within(q, radius_m),
+            Self::Grid(g) => g.nearest_within(q, radius_m),
+        }
+    }
 }
 
 /// Sums of one linearisation (about `centre`, rotation scaled by `1/length`).

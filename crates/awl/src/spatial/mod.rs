@@ -1,5 +1,11 @@
 //! Neighbour search over a point set: a k-d tree (kiddo) behind a small API, so the rest of awl
-//! never sees the crate's types. Distances returned are squared, metres².
+//! never sees the crate's types, and [`ProjectiveGrid`] for one depth view's points. Distances
+//! returned are squared, metres².
+
+pub(crate) mod cells;
+mod projective;
+
+pub use projective::ProjectiveGrid;
 
 use std::num::NonZeroUsize;
 
