@@ -51,15 +51,19 @@ pub fn write_outputs(
     out: &FuseOutput,
     rmse_m: Option<f64>,
 ) -> anyhow::Result<(PathBuf, Option<Workpiece>)> {
-    // the tag on the model, for `awl pierce`: estimated before anything is written
-    let workpiece = workpiece_from_fuse(scan, out, "model.ply", &WorkpieceParams::default())?;
+    // the tag on the model, for `awl pierce`, and the report page (side by side): both made before
+    // anything is written
+    let (workpiece, page) = rayon::join(
+        || workpiece_from_fuse(scan, out, "model.ply", &WorkpieceParams::default()),
+        || fuse_page(&out.report, &out.model, rmse_m, &PageParams::default()),
+    );
+    let (workpiece, page) = (workpiece?, page?);
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
     write_cloud(&out_dir.join("model.ply"), &out.model)?;
     write_json(&out_dir.join("report.json"), &out.report)?;
     if let Some(wp) = &workpiece {
         write_workpiece(&out_dir.join(WORKPIECE_FILE), wp)?;
     }
-    let page = fuse_page(&out.report, &out.model, rmse_m, &PageParams::default())?;
     Ok((write_report(out_dir, &page.page, &page.renders)?, workpiece))
 }
 

@@ -3,6 +3,7 @@
 //! with the view's registered pose, reject outliers and average (see [`robust_mean`]).
 
 use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Intrinsics;
@@ -259,20 +260,30 @@ pub fn estimate_world_from_tag(
     }
     let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
     let rays = camera.intrinsics.ray_table();
-    let mut detector = AprilTagDetector::new(&params.detector)?;
-    let (mut detections, mut views_checked): (Vec<(ViewTagDetection, Point3<f64>)>, _) = (Vec::new(), Vec::new());
-    for (index, pose) in world_from_camera.iter().enumerate() {
-        let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
-        let Some(world_from_camera) = pose else { continue };
-        if !has_color {
-            continue;
-        }
-        let loaded = load_view(scan, index, Some(&rays))?;
-        let Some(image) = loaded.color.as_ref() else { continue };
+    AprilTagDetector::new(&params.detector)?; // the parameters checked once, up front
+    // the views in parallel (each loads its images), one detector per worker; results in view order
+    let per_view = (0..world_from_camera.len())
+        .into_par_iter()
+        .map_init(
+            || AprilTagDetector::new(&params.detector),
+            |detector, index| -> Result<Option<(usize, Vec<(ViewTagDetection, Point3<f64>)>)>> {
+                let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
+                let Some(world_from_camera) = world_from_camera[index].filter(|_| has_color) else {
+                    return Ok(None);
+                };
+                let loaded = load_view(scan, index, Some(&rays))?;
+                let Some(image) = loaded.color.as_ref() else { return Ok(None) };
+                let detector = detector.as_mut().map_err(|e| Error::invalid("tag detector", e.to_string()))?;
+                let points_camera = &loaded.cloud_camera.points;
+                let view = TagView { index, image, points_camera, world_from_camera };
+                Ok(Some((index, detect_view(detector, &view, &camera.intrinsics, tag, params)?)))
+            },
+        )
+        .collect::<Result<Vec<_>>>()?;
+    let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
+    for (index, found) in per_view.into_iter().flatten() {
         views_checked.push(index);
-        let view =
-            TagView { index, image, points_camera: &loaded.cloud_camera.points, world_from_camera: *world_from_camera };
-        detections.extend(detect_view(&mut detector, &view, &camera.intrinsics, tag, params)?);
+        detections.extend(found);
     }
     finish(detections, views_checked, tag, params)
 }
