@@ -37,7 +37,7 @@ pub struct ProjectiveGrid {
 }
 
 /// Inclusive cell ranges `[x0, x1] x [y0, y1]`.
-#[derive(Clone, Copy, PartialEq)]
+#[derive(Clone, Copy)]
 struct Window {
     x: (usize, usize),
     y: (usize, usize),

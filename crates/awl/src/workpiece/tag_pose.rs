@@ -127,7 +127,7 @@ fn detect_view(
     intrinsics: &Intrinsics,
     tag: &TagSpec,
     params: &TagEstimateParams,
-) -> Result<Vec<(ViewTagDetection, Point3<f64>)>> {
+) -> Result<Vec<Found>> {
     let camera = Point3::from(view.world_from_camera.translation.vector);
     let mut out = Vec::new();
     for d in detector.detect_color(view.image)? {
@@ -185,17 +185,44 @@ pub fn estimate_from_views(
     params: &TagEstimateParams,
 ) -> Result<TagEstimate> {
     check_tag_spec(tag)?;
-    let mut detector = AprilTagDetector::new(&params.detector)?;
-    let mut detections: Vec<(ViewTagDetection, Point3<f64>)> = Vec::new();
-    for view in views {
-        detections.extend(detect_view(&mut detector, view, intrinsics, tag, params)?);
-    }
-    let views_checked: Vec<usize> = views.iter().map(|v| v.index).collect();
+    let (detections, views_checked) = detect_each(views.len(), &params.detector, |detector, k| {
+        Ok(Some((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?)))
+    })?;
     finish(detections, views_checked, tag, params)
 }
 
+/// A detection and the camera centre of its view (world frame).
+type Found = (ViewTagDetection, Point3<f64>);
+
+/// `detect(detector, k)` for `k` in `0..n`, in parallel with one detector per worker: the
+/// detections in order of `k`, and the indices of the views searched (`detect` gives a view's
+/// index and detections, or `None` for a view it could not search).
+fn detect_each(
+    n: usize,
+    params: &DetectorParams,
+    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Option<(usize, Vec<Found>)>> + Sync + Send,
+) -> Result<(Vec<Found>, Vec<usize>)> {
+    AprilTagDetector::new(params)?; // the parameters checked once, up front
+    let per_view = (0..n)
+        .into_par_iter()
+        .map_init(
+            || AprilTagDetector::new(params),
+            |detector, k| {
+                let detector = detector.as_mut().map_err(|e| Error::invalid("tag detector", e.to_string()))?;
+                detect(detector, k)
+            },
+        )
+        .collect::<Result<Vec<_>>>()?;
+    let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
+    for (index, found) in per_view.into_iter().flatten() {
+        views_checked.push(index);
+        detections.extend(found);
+    }
+    Ok((detections, views_checked))
+}
+
 fn finish(
-    found: Vec<(ViewTagDetection, Point3<f64>)>,
+    found: Vec<Found>,
     views_checked: Vec<usize>,
     tag: &TagSpec,
     params: &TagEstimateParams,
@@ -260,30 +287,14 @@ pub fn estimate_world_from_tag(
     }
     let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
     let rays = camera.intrinsics.ray_table();
-    AprilTagDetector::new(&params.detector)?; // the parameters checked once, up front
-    // the views in parallel (each loads its images), one detector per worker; results in view order
-    let per_view = (0..world_from_camera.len())
-        .into_par_iter()
-        .map_init(
-            || AprilTagDetector::new(&params.detector),
-            |detector, index| -> Result<Option<(usize, Vec<(ViewTagDetection, Point3<f64>)>)>> {
-                let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
-                let Some(world_from_camera) = world_from_camera[index].filter(|_| has_color) else {
-                    return Ok(None);
-                };
-                let loaded = load_view(scan, index, Some(&rays))?;
-                let Some(image) = loaded.color.as_ref() else { return Ok(None) };
-                let detector = detector.as_mut().map_err(|e| Error::invalid("tag detector", e.to_string()))?;
-                let points_camera = &loaded.cloud_camera.points;
-                let view = TagView { index, image, points_camera, world_from_camera };
-                Ok(Some((index, detect_view(detector, &view, &camera.intrinsics, tag, params)?)))
-            },
-        )
-        .collect::<Result<Vec<_>>>()?;
-    let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
-    for (index, found) in per_view.into_iter().flatten() {
-        views_checked.push(index);
-        detections.extend(found);
-    }
+    // each view loads its images in its worker
+    let (detections, views_checked) = detect_each(world_from_camera.len(), &params.detector, |detector, index| {
+        let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
+        let Some(world_from_camera) = world_from_camera[index].filter(|_| has_color) else { return Ok(None) };
+        let loaded = load_view(scan, index, Some(&rays))?;
+        let Some(image) = loaded.color.as_ref() else { return Ok(None) };
+        let view = TagView { index, image, points_camera: &loaded.cloud_camera.points, world_from_camera };
+        Ok(Some((index, detect_view(detector, &view, &camera.intrinsics, tag, params)?)))
+    })?;
     finish(detections, views_checked, tag, params)
 }
