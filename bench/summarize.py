@@ -21,7 +21,7 @@ UNITS = {"ns": 1e-9, "µs": 1e-6, "us": 1e-6, "ms": 1e-3, "s": 1.0}
 # awl report.json stages -> the Open3D pipeline's stages (each pipeline with its own parameters)
 PIPELINE = [
     ("load (PNG decode + back-projection)", ["load"], ["load"]),
-    ("per-view voxel + SOR + normals", ["roi", "voxel", "outliers", "normals", "outliers + normals", "plane normals"], ["preprocess"]),
+    ("per-view voxel + SOR + normals", ["roi", "voxel", "outliers", "normals", "outliers + normals", "voxel + outliers + normals", "plane normals"], ["preprocess"]),
     ("register (ICP)", ["register"], ["register"]),
     ("merge", ["merge"], ["merge"]),
     ("floor + DBSCAN", ["floor + clusters"], ["segment"]),

@@ -126,7 +126,18 @@ pub fn depth_to_cloud(
     camera: &DepthCamera,
     rays: &[[f32; 2]],
 ) -> PointCloud {
+    depth_to_cloud_with_pixels(depth, color, camera, rays).0
+}
+
+/// Like [`depth_to_cloud`], also returning the pixel (`v * width + u`) of every point.
+pub fn depth_to_cloud_with_pixels(
+    depth: &DepthImage,
+    color: Option<&ColorImage>,
+    camera: &DepthCamera,
+    rays: &[[f32; 2]],
+) -> (PointCloud, Vec<u32>) {
     let mut points = Vec::new();
+    let mut pixels = Vec::new();
     let mut colors = color.map(|_| Vec::new());
     for (i, (&raw, ray)) in depth.data.iter().zip(rays).enumerate() {
         if raw == 0 {
@@ -138,11 +149,12 @@ pub fn depth_to_cloud(
         }
         let z = z as f32;
         points.push(Point3::new(ray[0] * z, ray[1] * z, z));
+        pixels.push(i as u32);
         if let (Some(colors), Some(image)) = (colors.as_mut(), color) {
             colors.push(image.data[i]);
         }
     }
-    PointCloud { points, normals: None, colors }
+    (PointCloud { points, normals: None, colors }, pixels)
 }
 
 #[cfg(test)]

@@ -15,6 +15,7 @@ pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod normals;
+pub mod organized;
 pub mod pierce;
 pub mod pipeline;
 pub mod registration;

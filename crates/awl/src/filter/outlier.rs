@@ -160,7 +160,12 @@ fn from_table(cloud: &PointCloud, index: &KdIndex, table: &KnnTable, params: &So
             d.iter().sum::<f64>() / d.len() as f64
         })
         .collect();
+    from_mean_distances(&mean_dist, params)
+}
 
+/// Open3D's rule on per-point mean neighbour distances (`0` = no neighbour: removed, left out of
+/// the statistics): keep the points below mean + `std_ratio` x standard deviation.
+pub(crate) fn from_mean_distances(mean_dist: &[f64], params: &SorParams) -> SorResult {
     let n = mean_dist.len() as f64;
     let mean = mean_dist.iter().filter(|&&d| d > 0.0).sum::<f64>() / n;
     let sq_sum: f64 = mean_dist.iter().filter(|&&d| d > 0.0).map(|&d| (d - mean) * (d - mean)).sum();

@@ -10,7 +10,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud};
+use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud_with_pixels};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
@@ -100,6 +100,8 @@ pub struct LoadedView {
     pub world_from_camera: Isometry3<f64>,
     /// Points inside the depth range, camera frame, with colors when the view has them.
     pub cloud_camera: PointCloud,
+    /// For a depth view, the pixel (`v * width + u`) each point came from.
+    pub pixels: Option<Vec<u32>>,
     /// The color image, when the view has one.
     pub color: Option<ColorImage>,
 }
@@ -425,8 +427,8 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
                     &owned
                 }
             };
-            let cloud_camera = depth_to_cloud(&depth_image, color.as_ref(), camera, rays);
-            Ok(LoadedView { world_from_camera, cloud_camera, color })
+            let (cloud_camera, pixels) = depth_to_cloud_with_pixels(&depth_image, color.as_ref(), camera, rays);
+            Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
         }
         ViewData::Points { points } => {
             let mut cloud_camera = crate::io::mesh::read_cloud(&scan.dir.join(points))?;
@@ -439,7 +441,7 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
                     .collect();
                 cloud_camera = cloud_camera.select(&keep);
             }
-            Ok(LoadedView { world_from_camera, cloud_camera, color: None })
+            Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None })
         }
     }
 }

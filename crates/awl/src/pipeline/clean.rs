@@ -19,7 +19,29 @@ use crate::cloud::PointCloud;
 use crate::error::Result;
 use crate::filter::outlier::{SorParams, statistical_from_knn};
 use crate::normals::{NormalParams, covariance, orient_towards, plane_of};
+use crate::organized::{self, PixelGrid};
 use crate::spatial::{KdIndex, KnnTable, Neighbor};
+
+/// A depth view's cloud without its statistical outliers, with unit normals oriented toward the
+/// camera (the origin; points whose normal is undefined dropped): both from each point's window of
+/// `(2 half + 1)^2` pixels on `grid` (see `organized`).
+///
+/// # Errors
+/// Bad parameters, a non-finite cloud, a grid that is not the cloud's.
+pub(crate) fn clean_on_grid(
+    cloud: &PointCloud,
+    grid: &PixelGrid,
+    half: usize,
+    sor: &SorParams,
+    params: &NormalParams,
+) -> Result<PointCloud> {
+    let (sor, mut normals) = organized::clean(cloud, grid, half, sor, params)?;
+    let mut out = cloud.select(&sor.kept);
+    orient_towards(&out.points, &mut normals, &Point3::origin())?;
+    let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
+    out.normals = Some(normals);
+    Ok(out.select(&valid))
+}
 
 /// The cloud without its statistical outliers, with unit normals oriented toward `viewpoint`
 /// (the points whose normal is undefined dropped): `statistical` then `with_normals`.

@@ -171,6 +171,10 @@ pub struct FuseConfig {
     pub outliers: SorParams,
     /// Per-view normals, oriented toward the view's camera. Default 20 neighbours within 10 mm.
     pub normals: NormalParams,
+    /// Half-width, pixels, of the window on a depth view's image where its points find their
+    /// neighbours for outlier removal and normals (default 3: 7 x 7 pixels, about 1 cm at 1 m).
+    /// 0 searches a k-d tree of the down-sampled view instead, as for views given as clouds.
+    pub pixel_window: usize,
     /// Drop points seen at more than this angle between their normal and the ray to the camera,
     /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
     /// noisiest. `None` keeps all. Default 80 degrees.
@@ -196,6 +200,7 @@ impl Default for FuseConfig {
             view_voxel: VoxelParams::default(),
             outliers: SorParams::default(),
             normals: NormalParams::default(),
+            pixel_window: 3,
             max_incidence_rad: Some(80f64.to_radians()),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
             registration: RegistrationConfig::default(),

@@ -1,13 +1,15 @@
-//! Per-view stages: load (depth -> points, range crop), voxel down-sampling, statistical outlier
-//! removal and normals oriented toward the view's camera (one stage: they share one k-NN pass, see
-//! `clean`). Each stage runs over all views in parallel.
+//! Per-view stages: load (depth -> points, range crop), region of interest, then voxel
+//! down-sampling, statistical outlier removal and normals oriented toward the view's camera (one
+//! stage). A depth view's outliers and normals come from its pixel grid (`organized`), before the
+//! voxel grid (which averages the normals); a cloud view is down-sampled first, then cleaned with
+//! one k-NN pass (`clean`). Each stage runs over all views in parallel.
 
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::clean::clean_with_normals;
+use super::clean::{clean_on_grid, clean_with_normals};
 use super::config::FuseConfig;
 use super::report::StageReport;
 use crate::cloud::PointCloud;
@@ -15,6 +17,7 @@ use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
 use crate::io::scan::{Scan, load_view};
+use crate::organized::PixelGrid;
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
 /// A view ready for registration.
@@ -23,6 +26,8 @@ pub(crate) struct PreparedView {
     pub seed: Isometry3<f64>,
     /// Points in the camera frame with normals facing the camera.
     pub cloud: PointCloud,
+    /// Until the voxel grid: for a depth view, the pixel (`v * width + u`) of every point.
+    pub pixels: Option<Vec<u32>>,
 }
 
 /// One entry per scan view: the prepared view, or why it cannot be used.
@@ -61,24 +66,41 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
     Ok(view)
 }
 
-/// Outlier removal, then normals oriented toward the camera and the incidence filter. One k-NN
-/// pass serves both (see `clean`), unless the view came with its own normals (a cloud file), which
-/// are kept.
-fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig) -> Result<PreparedView> {
-    let mut cloud = if view.cloud.normals.is_some() {
-        let keep = statistical(&view.cloud, &config.outliers)?;
-        non_empty(PreparedView { seed: view.seed, cloud: view.cloud.select(&keep) }, "outlier removal")?.cloud
-    } else {
-        clean_with_normals(&view.cloud, &config.outliers, &config.normals, Point3::origin())?
+/// Voxel down-sampling, outlier removal, normals oriented toward the camera, the incidence filter.
+/// A depth view is cleaned on its pixel grid, then down-sampled; a cloud view is down-sampled,
+/// then cleaned with one k-NN pass (see `clean`), unless it came with its own normals, which are
+/// kept.
+fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, height: usize) -> Result<PreparedView> {
+    let PreparedView { seed, cloud, pixels } = view;
+    let cloud = match pixels {
+        Some(pixels) => {
+            let grid = PixelGrid::new(width, height, pixels)?;
+            let cleaned = clean_on_grid(&cloud, &grid, config.pixel_window, &config.outliers, &config.normals)?;
+            downsample(&without_grazing(cleaned, config.max_incidence_rad), &config.view_voxel)?
+        }
+        None => {
+            let cloud = downsample(&cloud, &config.view_voxel)?;
+            let cleaned = if cloud.normals.is_some() {
+                let keep = statistical(&cloud, &config.outliers)?;
+                cloud.select(&keep)
+            } else {
+                clean_with_normals(&cloud, &config.outliers, &config.normals, Point3::origin())?
+            };
+            without_grazing(cleaned, config.max_incidence_rad)
+        }
     };
-    if let (Some(max), Some(normals)) = (config.max_incidence_rad, cloud.normals.as_ref()) {
-        let min_cos = max.cos() as f32;
-        let keep: Vec<usize> = (0..cloud.len())
-            .filter(|&i| normals[i].dot(&(-cloud.points[i].coords)) >= min_cos * cloud.points[i].coords.norm())
-            .collect();
-        cloud = cloud.select(&keep);
-    }
-    non_empty(PreparedView { seed: view.seed, cloud }, "outlier removal, normal estimation and the incidence filter")
+    non_empty(PreparedView { seed, cloud, pixels: None }, "outlier removal, normal estimation and the incidence filter")
+}
+
+/// The points seen at more than `max_incidence_rad` between their normal and the ray to the
+/// camera (at the origin) dropped.
+fn without_grazing(cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
+    let (Some(max), Some(normals)) = (max_incidence_rad, cloud.normals.as_ref()) else { return cloud };
+    let min_cos = max.cos() as f32;
+    let keep: Vec<usize> = (0..cloud.len())
+        .filter(|&i| normals[i].dot(&(-cloud.points[i].coords)) >= min_cos * cloud.points[i].coords.norm())
+        .collect();
+    cloud.select(&keep)
 }
 
 /// The point nearest to every view's optical axis (least squares), world frame; `None` when the
@@ -116,7 +138,7 @@ fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<Prepar
             normals[i] = if facing { n_camera } else { -n_camera };
         }
     }
-    Ok(PreparedView { seed: view.seed, cloud })
+    Ok(PreparedView { seed: view.seed, cloud, pixels: view.pixels })
 }
 
 /// Loads and prepares every view; failures are kept per view as messages. Returns the focus point
@@ -132,7 +154,8 @@ pub(crate) fn prepare(
         .into_par_iter()
         .map(|i| {
             let loaded = load_view(scan, i, rays.as_deref()).map_err(|e| e.to_string())?;
-            let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera };
+            let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
+            let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels };
             non_empty(view, "the depth range crop").map_err(|e| e.to_string())
         })
         .collect();
@@ -152,14 +175,15 @@ pub(crate) fn prepare(
             let centre = (camera_from_world * focus).cast::<f32>();
             let keep: Vec<usize> =
                 (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
-            non_empty(PreparedView { seed: v.seed, cloud: v.cloud.select(&keep) }, "the region-of-interest crop")
+            let pixels = v.pixels.map(|px| keep.iter().map(|&i| px[i]).collect());
+            non_empty(
+                PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels },
+                "the region-of-interest crop",
+            )
         });
     }
-    stage("voxel", &mut views, reports, |v| {
-        let cloud = downsample(&v.cloud, &config.view_voxel)?;
-        Ok(PreparedView { seed: v.seed, cloud })
-    });
-    stage("outliers + normals", &mut views, reports, |v| cleaned_and_oriented(v, config));
+    let (width, height) = scan.camera.map_or((0, 0), |c| (c.intrinsics.width as usize, c.intrinsics.height as usize));
+    stage("voxel + outliers + normals", &mut views, reports, |v| cleaned_and_oriented(v, config, width, height));
     if let Some(params) = &config.snap_plane {
         stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
     }
