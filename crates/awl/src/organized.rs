@@ -4,8 +4,8 @@
 //!
 //! Within a window the neighbours are still chosen by 3D distance (the `k` nearest of the window's
 //! points), so a window that straddles a depth edge keeps the points of the point's own surface.
-//! What differs from a k-d tree's k-NN: a neighbour outside the window is never found. With the
-//! default 7 x 7 window and 20 neighbours that only matters where the surface is seen nearly
+//! What differs from a k-d tree's k-NN: a neighbour outside the window is never found. With a
+//! 7 x 7 window and 20 neighbours that only matters where the surface is seen nearly
 //! edge-on (few points per window on it), which the incidence filter removes anyway.
 
 use nalgebra::{Point3, Vector3};
@@ -175,20 +175,20 @@ pub fn clean(
     check(cloud, grid, half)?;
     let points = &cloud.points;
     let (k_sor, k_normal) = (sor.neighbors - 1, params.neighbors - 1);
+    let (k_min, k_max) = (k_sor.min(k_normal), k_sor.max(k_normal));
     let r2 = params.radius_m.map_or(f32::INFINITY, |r| (r * r) as f32);
-    let first: Vec<(f64, Vector3<f32>)> = (0..points.len())
+    let (mean_dist, provisional): (Vec<f64>, Vec<Vector3<f32>>) = (0..points.len())
         .into_par_iter()
         .with_min_len(1024)
         .map_init(Vec::new, |near: &mut Vec<u64>, i| {
-            window_knn(points, grid, i, half, k_sor.max(k_normal), |_| true, near);
-            if near.len() > k_sor.min(k_normal) {
-                near.select_nth_unstable(k_sor.min(k_normal)); // the smaller set first, then the rest
+            window_knn(points, grid, i, half, k_max, |_| true, near);
+            if near.len() > k_min {
+                near.select_nth_unstable(k_min); // the smaller set first, then the rest
             }
             let mean = mean_distance(&near[..k_sor.min(near.len())]);
             (mean, normal_of(points, i, &near[..k_normal.min(near.len())], r2))
         })
-        .collect();
-    let mean_dist: Vec<f64> = first.iter().map(|f| f.0).collect();
+        .unzip();
     let result = from_mean_distances(&mean_dist, sor);
     let mut removed = vec![true; points.len()];
     for &i in &result.kept {
@@ -204,7 +204,7 @@ pub fn clean(
         .with_min_len(1024)
         .map_init(Vec::new, |near, &i| {
             if !dirty[i] {
-                return first[i].1;
+                return provisional[i];
             }
             window_knn(points, grid, i, half, k_normal, |j| !removed[j], near);
             normal_of(points, i, near, r2)
@@ -253,7 +253,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     /// A 120 x 90 view of a plane tilted 30 degrees, 1 m away, with depth noise and `flying`
-    /// points pushed 5-20 cm off the surface: (cloud, pixels, plane normal).
+    /// points pushed 5-20 cm off the surface: (cloud, pixels, plane normal, the flying points).
     fn tilted_plane(flying: usize, seed: u64) -> (PointCloud, Vec<u32>, Vector3<f32>, Vec<usize>) {
         let (w, h, f) = (120usize, 90usize, 300.0f32);
         let normal = Vector3::new(0.0, 30f32.to_radians().sin(), -30f32.to_radians().cos());
@@ -282,15 +282,15 @@ mod tests {
     #[test]
     fn grid_rejects_bad_pixels() {
         assert!(PixelGrid::new(4, 3, vec![0, 11]).is_ok());
-        let out = PixelGrid::new(4, 3, vec![0, 12]).unwrap_err().to_string();
+        let out = PixelGrid::new(4, 3, vec![0, 12]).expect_err("an error").to_string();
         assert!(out.contains("pixel 12 is outside"), "{out}");
-        let twice = PixelGrid::new(4, 3, vec![5, 5]).unwrap_err().to_string();
+        let twice = PixelGrid::new(4, 3, vec![5, 5]).expect_err("an error").to_string();
         assert!(twice.contains("share pixel 5"), "{twice}");
     }
 
     #[test]
     fn window_stays_inside_the_image() {
-        let grid = PixelGrid::new(3, 2, (0..6).collect()).unwrap();
+        let grid = PixelGrid::new(3, 2, (0..6).collect()).expect("ok");
         let mut seen = Vec::new();
         grid.for_window(0, 1, |j| seen.push(j));
         assert_eq!(seen, vec![1, 3, 4]);
@@ -302,10 +302,10 @@ mod tests {
     #[test]
     fn removes_flying_points_like_the_tree_and_keeps_the_surface() {
         let (cloud, pixels, _, outliers) = tilted_plane(60, 1);
-        let grid = PixelGrid::new(120, 90, pixels).unwrap();
+        let grid = PixelGrid::new(120, 90, pixels).expect("ok");
         let sor = SorParams::default();
-        let ours = statistical(&cloud, &grid, 3, &sor).unwrap();
-        let tree = statistical_detailed(&cloud, &sor).unwrap();
+        let ours = statistical(&cloud, &grid, 3, &sor).expect("ok");
+        let tree = statistical_detailed(&cloud, &sor).expect("ok");
         // Every pushed point is removed, and nearly nothing else (the tree removes the same).
         for &o in &outliers {
             assert!(ours.kept.binary_search(&o).is_err(), "flying point {o} kept");
@@ -321,11 +321,11 @@ mod tests {
     #[test]
     fn normals_match_the_plane_and_the_tree() {
         let (cloud, pixels, normal, _) = tilted_plane(0, 2);
-        let grid = PixelGrid::new(120, 90, pixels).unwrap();
+        let grid = PixelGrid::new(120, 90, pixels).expect("ok");
         let all: Vec<usize> = (0..cloud.len()).collect();
         let params = NormalParams::default();
-        let ours = normals(&cloud, &grid, 3, &all, &params).unwrap();
-        let tree = with_normals(&cloud, &params, None).unwrap().normals.unwrap();
+        let ours = normals(&cloud, &grid, 3, &all, &params).expect("ok");
+        let tree = with_normals(&cloud, &params, None).expect("ok").normals.expect("ok");
         let angle = |a: &Vector3<f32>, b: &Vector3<f32>| a.dot(b).abs().min(1.0).acos().to_degrees();
         let mut ours_err: Vec<f32> = ours.iter().map(|n| angle(n, &normal)).collect();
         let mut tree_err: Vec<f32> = tree.iter().map(|n| angle(n, &normal)).collect();
@@ -338,15 +338,15 @@ mod tests {
     #[test]
     fn one_pass_equals_the_two_passes() {
         let (cloud, pixels, _, _) = tilted_plane(80, 5);
-        let grid = PixelGrid::new(120, 90, pixels).unwrap();
+        let grid = PixelGrid::new(120, 90, pixels).expect("ok");
         for (sor_k, normal_k, radius) in [(20, 20, Some(0.01)), (12, 30, Some(0.004)), (30, 8, None)] {
             let sor = SorParams { neighbors: sor_k, ..SorParams::default() };
             let params = NormalParams { neighbors: normal_k, radius_m: radius };
-            let (result, ours) = clean(&cloud, &grid, 3, &sor, &params).unwrap();
-            let reference = statistical(&cloud, &grid, 3, &sor).unwrap();
+            let (result, ours) = clean(&cloud, &grid, 3, &sor, &params).expect("ok");
+            let reference = statistical(&cloud, &grid, 3, &sor).expect("ok");
             assert_eq!(result.kept, reference.kept);
             assert!(reference.kept.len() <= cloud.len() - 80, "{} of {}", reference.kept.len(), cloud.len());
-            let theirs = normals(&cloud, &grid, 3, &reference.kept, &params).unwrap();
+            let theirs = normals(&cloud, &grid, 3, &reference.kept, &params).expect("ok");
             if sor_k == normal_k {
                 assert_eq!((result.mean_distance_m, ours.clone()), (reference.mean_distance_m, theirs.clone()));
             }
@@ -358,11 +358,12 @@ mod tests {
     #[test]
     fn same_result_on_one_and_two_threads() {
         let (cloud, pixels, _, _) = tilted_plane(30, 3);
-        let grid = PixelGrid::new(120, 90, pixels).unwrap();
+        let grid = PixelGrid::new(120, 90, pixels).expect("ok");
         let run = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("ok");
             pool.install(|| {
-                let (sor, normals) = clean(&cloud, &grid, 3, &SorParams::default(), &NormalParams::default()).unwrap();
+                let (sor, normals) =
+                    clean(&cloud, &grid, 3, &SorParams::default(), &NormalParams::default()).expect("ok");
                 (normals, sor.kept)
             })
         };
@@ -372,11 +373,11 @@ mod tests {
     #[test]
     fn bad_input_is_an_error() {
         let (cloud, pixels, _, _) = tilted_plane(0, 4);
-        let grid = PixelGrid::new(120, 90, pixels).unwrap();
+        let grid = PixelGrid::new(120, 90, pixels).expect("ok");
         let sor = SorParams::default();
-        assert!(statistical(&cloud, &grid, 0, &sor).unwrap_err().to_string().contains("pixel_window"));
+        assert!(statistical(&cloud, &grid, 0, &sor).expect_err("an error").to_string().contains("pixel_window"));
         let fewer = cloud.select(&[0, 1, 2]);
-        assert!(statistical(&fewer, &grid, 3, &sor).unwrap_err().to_string().contains("pixels for 3 points"));
+        assert!(statistical(&fewer, &grid, 3, &sor).expect_err("an error").to_string().contains("pixels for 3 points"));
         let mut nan = cloud.clone();
         nan.points[7].x = f32::NAN;
         assert!(statistical(&nan, &grid, 3, &sor).is_err());

@@ -82,17 +82,21 @@ fn brute_force_distances(mesh: &TriMesh, points: &[Point3<f32>]) -> Vec<f64> {
         .collect()
 }
 
+/// The rotation by `angle` about `axis` through the centre of the CAD's bounding box.
+fn turn_about_centre(mesh: &TriMesh, axis: &nalgebra::Unit<Vector3<f64>>, angle: f64) -> Isometry3<f64> {
+    let lo = mesh.vertices.iter().fold(Vector3::repeat(f64::INFINITY), |a, p| a.inf(&p.coords));
+    let hi = mesh.vertices.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |a, p| a.sup(&p.coords));
+    let c = (lo + hi) / 2.0;
+    Translation3::from(c) * UnitQuaternion::from_axis_angle(axis, angle) * Translation3::from(-c)
+}
+
 /// Rotations by 180 deg about the axes of the CAD's bounding box through its centre (the
 /// symmetries of a box), or the identity alone.
 fn symmetries(mesh: &TriMesh, boxy: bool) -> Vec<Isometry3<f64>> {
     let mut out = vec![Isometry3::identity()];
     if boxy {
-        let lo = mesh.vertices.iter().fold(Vector3::repeat(f64::INFINITY), |a, p| a.inf(&p.coords));
-        let hi = mesh.vertices.iter().fold(Vector3::repeat(f64::NEG_INFINITY), |a, p| a.sup(&p.coords));
-        let c = (lo + hi) / 2.0;
         for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
-            let r = UnitQuaternion::from_axis_angle(&axis, std::f64::consts::PI);
-            out.push(Translation3::from(c) * r * Translation3::from(-c));
+            out.push(turn_about_centre(mesh, &axis, std::f64::consts::PI));
         }
     }
     out
@@ -248,22 +252,8 @@ fn a_fused_box_agrees_with_open3d() {
     // (61 % complete) fits both ways equally (scores within 1e-5): then the global pose is the
     // truth-started one turned a quarter about the box's axis, to the 2.5 mm the sides differ, and
     // the model's errors against the CAD are the same.
-    let (lo, hi) = cad
-        .vertices
-        .iter()
-        .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
-            (lo.inf(&p.coords), hi.sup(&p.coords))
-        });
-    let c = (lo + hi) / 2.0;
-    let quarter: Vec<Isometry3<f64>> = symmetries(&cad, true)
-        .iter()
-        .map(|g| {
-            Translation3::from(c)
-                * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2)
-                * Translation3::from(-c)
-                * g
-        })
-        .collect();
+    let quarter_turn = turn_about_centre(&cad, &Vector3::z_axis(), std::f64::consts::FRAC_PI_2);
+    let quarter: Vec<Isometry3<f64>> = symmetries(&cad, true).iter().map(|g| quarter_turn * g).collect();
     let (d_turned, deg_turned) = pose_error(&model, &global.object_from_model, &given.object_from_model, &quarter);
     let s = &given.summary;
     let on = s.distances.on_object.as_ref().expect("on-object");

@@ -35,12 +35,21 @@ pub(crate) fn clean_on_grid(
     sor: &SorParams,
     params: &NormalParams,
 ) -> Result<PointCloud> {
-    let (sor, mut normals) = organized::clean(cloud, grid, half, sor, params)?;
-    let mut out = cloud.select(&sor.kept);
-    orient_towards(&out.points, &mut normals, &Point3::origin())?;
+    let (sor, normals) = organized::clean(cloud, grid, half, sor, params)?;
+    with_oriented_normals(cloud.select(&sor.kept), normals, &Point3::origin())
+}
+
+/// `cloud` with `normals` (one per point) turned toward `viewpoint`, without the points whose
+/// normal is undefined (zero).
+fn with_oriented_normals(
+    mut cloud: PointCloud,
+    mut normals: Vec<Vector3<f32>>,
+    viewpoint: &Point3<f32>,
+) -> Result<PointCloud> {
+    orient_towards(&cloud.points, &mut normals, viewpoint)?;
     let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
-    out.normals = Some(normals);
-    Ok(out.select(&valid))
+    cloud.normals = Some(normals);
+    Ok(cloud.select(&valid))
 }
 
 /// The cloud without its statistical outliers, with unit normals oriented toward `viewpoint`
@@ -59,7 +68,7 @@ pub(crate) fn clean_with_normals(
     let index = KdIndex::new(&cloud.points)?;
     let table = KnnTable::new(&cloud.points, &index, sor.neighbors.max(params.neighbors + 1))?;
     let kept = statistical_from_knn(cloud, &index, &table, sor)?.kept;
-    let mut out = cloud.select(&kept);
+    let out = cloud.select(&kept);
     let mut position = vec![u32::MAX; cloud.len()]; // index in `out` of each kept point
     for (j, &i) in kept.iter().enumerate() {
         position[i] = j as u32;
@@ -68,7 +77,7 @@ pub(crate) fn clean_with_normals(
     let k = params.neighbors.min(kept.len());
     let r2 = params.radius_m.map_or(f32::INFINITY, |r| (r * r) as f32);
     let points = &out.points;
-    let mut normals: Vec<Vector3<f32>> = (0..points.len())
+    let normals: Vec<Vector3<f32>> = (0..points.len())
         .into_par_iter()
         .with_min_len(256)
         .map_init(Vec::new, |buf: &mut Vec<Neighbor>, j| {
@@ -81,10 +90,7 @@ pub(crate) fn clean_with_normals(
             fit.map_or_else(Vector3::zeros, |(n, _)| n.cast::<f32>())
         })
         .collect();
-    orient_towards(&out.points, &mut normals, &viewpoint)?;
-    let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
-    out.normals = Some(normals);
-    Ok(out.select(&valid))
+    with_oriented_normals(out, normals, &viewpoint)
 }
 
 /// The `k` nearest kept points (indices in the kept cloud) from a row of the full table, into `buf`;

@@ -1,8 +1,8 @@
 //! Per-view stages: load (depth -> points, range crop), region of interest, then voxel
 //! down-sampling, statistical outlier removal and normals oriented toward the view's camera (one
-//! stage). A depth view's outliers and normals come from its pixel grid (`organized`), before the
-//! voxel grid (which averages the normals); a cloud view is down-sampled first, then cleaned with
-//! one k-NN pass (`clean`). Each stage runs over all views in parallel.
+//! stage): down-sampled first, then cleaned with one k-NN pass (`clean`). With `pixel_window` > 0
+//! a depth view's outliers and normals come from its pixel grid (`organized`) instead, before the
+//! voxel grid (which averages the normals). Each stage runs over all views in parallel.
 
 use std::time::Instant;
 
@@ -67,9 +67,9 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
 }
 
 /// Voxel down-sampling, outlier removal, normals oriented toward the camera, the incidence filter.
-/// A depth view is cleaned on its pixel grid, then down-sampled; a cloud view is down-sampled,
-/// then cleaned with one k-NN pass (see `clean`), unless it came with its own normals, which are
-/// kept.
+/// A view with pixels (a depth view, `pixel_window` > 0) is cleaned on its pixel grid, then
+/// down-sampled; otherwise the view is down-sampled, then cleaned with one k-NN pass (see `clean`),
+/// unless it came with its own normals, which are kept.
 fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, height: usize) -> Result<PreparedView> {
     let PreparedView { seed, cloud, pixels } = view;
     let cloud = match pixels {
