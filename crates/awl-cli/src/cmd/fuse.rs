@@ -38,7 +38,13 @@ pub struct FuseArgs {
 fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
     let Some(path) = path else { return Ok(FuseConfig::default()) };
     let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    toml::from_str(&text).with_context(|| format!("{}: invalid fuse config", path.display()))
+    let invalid = || format!("{}: invalid fuse config", path.display());
+    // parsed once as the config itself for messages with the line and key, then merged key by key
+    // over the fuse's defaults (a partial table keeps the fuse's values, not its type's)
+    let _: FuseConfig = toml::from_str(&text).with_context(invalid)?;
+    let document: toml::Value = toml::from_str(&text).with_context(invalid)?;
+    let document = serde_json::to_value(document).with_context(invalid)?;
+    FuseConfig::with_overrides(&document).with_context(invalid)
 }
 
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as

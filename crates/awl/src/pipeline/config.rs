@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::cluster::DbscanParams;
+use crate::error::{Error, Result};
 use crate::filter::outlier::SorParams;
 use crate::filter::voxel::VoxelParams;
 use crate::normals::NormalParams;
@@ -210,5 +211,111 @@ impl Default for FuseConfig {
             isolate: IsolateConfig::default(),
             smoothing: Some(MlsParams::default()),
         }
+    }
+}
+
+impl FuseConfig {
+    /// The config a partial document describes (e.g. a TOML file turned into a JSON value): each
+    /// key it gives replaces the same key of [`FuseConfig::default`], tables merged key by key,
+    /// lists and values replaced whole. So `[registration.icp]` with one key keeps the fuse's own ICP
+    /// levels and thresholds, not [`IcpParams::default`]'s (a sub-table's type default is not the
+    /// fuse's default wherever the fuse tunes it).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the unknown key or the value of the wrong type.
+    pub fn with_overrides(overrides: &serde_json::Value) -> Result<Self> {
+        let mut merged =
+            serde_json::to_value(Self::default()).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
+        merge(&mut merged, overrides);
+        serde_json::from_value(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
+    }
+}
+
+/// Writes `over` onto `base`: objects key by key (recursively), anything else replaced.
+fn merge(base: &mut serde_json::Value, over: &serde_json::Value) {
+    match (base, over) {
+        (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
+            for (key, value) in o {
+                match b.get_mut(key) {
+                    Some(slot) => merge(slot, value),
+                    None => {
+                        b.insert(key.clone(), value.clone());
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::{Value, json};
+
+    use super::*;
+
+    /// Every leaf of `v` as (path of keys, value); lists are leaves.
+    fn leaves(v: &Value, path: &mut Vec<String>, out: &mut Vec<(Vec<String>, Value)>) {
+        match v {
+            Value::Object(map) => {
+                for (k, x) in map {
+                    path.push(k.clone());
+                    leaves(x, path, out);
+                    path.pop();
+                }
+            }
+            other => out.push((path.clone(), other.clone())),
+        }
+    }
+
+    fn document(path: &[String], value: Value) -> Value {
+        path.iter().rev().fold(value, |inner, key| json!({ key: inner }))
+    }
+
+    #[test]
+    fn one_key_of_a_section_keeps_the_fuse_defaults_of_the_others() {
+        let defaults = serde_json::to_value(FuseConfig::default()).expect("defaults");
+        let mut all = Vec::new();
+        leaves(&defaults, &mut Vec::new(), &mut all);
+        assert!(all.len() > 40, "{} leaves", all.len());
+        for (path, value) in all.into_iter().filter(|(_, v)| !v.is_null()) {
+            let doc = document(&path, value);
+            let config = FuseConfig::with_overrides(&doc).expect("parse");
+            assert_eq!(config, FuseConfig::default(), "{}", path.join("."));
+        }
+        // the case that went wrong when a table was deserialized on its own: IcpParams::default has
+        // three levels and 1e-5 thresholds, the fuse four levels and 1e-4
+        let c =
+            FuseConfig::with_overrides(&json!({"registration": {"icp": {"kernel_scale_ratio": 0.25}}})).expect("parse");
+        assert_eq!(c.registration.icp.kernel_scale_ratio, 0.25);
+        assert_eq!(c.registration.icp.levels, FuseConfig::default().registration.icp.levels);
+        assert_eq!(c.registration.icp.levels.len(), 4);
+        assert_eq!(c.registration.icp.convergence_translation_m, 1e-4);
+        // deserialized on its own, the table took its type's defaults
+        let alone: FuseConfig =
+            serde_json::from_value(json!({"registration": {"icp": {"kernel_scale_ratio": 0.5}}})).expect("parse");
+        assert_ne!(alone.registration.icp.levels, FuseConfig::default().registration.icp.levels);
+    }
+
+    #[test]
+    fn overrides_replace_lists_and_refuse_unknown_keys() {
+        let c = FuseConfig::with_overrides(&json!({
+            "registration": {"joint_levels": []},
+            "view_voxel": {"voxel_size_m": 0.003},
+            "isolate": {"seed_point": [0.1, -0.2, 0.3]}
+        }))
+        .expect("parse");
+        assert!(c.registration.joint_levels.is_empty());
+        assert_eq!(c.view_voxel.voxel_size_m, 0.003);
+        assert_eq!(c.isolate.seed_point, Some([0.1, -0.2, 0.3]));
+        assert_eq!(c.registration.icp, FuseConfig::default().registration.icp);
+        let e = FuseConfig::with_overrides(&json!({"registration": {"icp": {"kernal": "huber"}}}))
+            .expect_err("unknown key")
+            .to_string();
+        assert!(e.contains("kernal"), "{e}");
+        let e = FuseConfig::with_overrides(&json!({"view_voxel": {"voxel_size_m": "two"}}))
+            .expect_err("wrong type")
+            .to_string();
+        assert!(e.contains("fuse config"), "{e}");
     }
 }
