@@ -173,10 +173,10 @@ pub struct FuseConfig {
     /// Per-view normals, oriented toward the view's camera. Default 20 neighbours within 10 mm.
     pub normals: NormalParams,
     /// Half-width, pixels, of the window on a depth view's image where its points find their
-    /// neighbours for outlier removal and normals (3: 7 x 7 pixels, about 1 cm at 1 m; the stage
-    /// 2.4 -> 0.85 s, model RMSE better on 6 of 8 scans, but the box's piercing trial 1.22 ->
-    /// 1.98 mm mean, BENCHMARKS.md 20). Default 0: a k-d tree of the down-sampled view, as for
-    /// views given as clouds.
+    /// neighbours for outlier removal and normals, before the view's voxel grid. Default 3 (7 x 7
+    /// pixels, about 1 cm at 1 m): the stage 2.4 -> 0.85 s, model RMSE better on 6 of 8 scans, the
+    /// box piercing trials equal within their spread (BENCHMARKS.md 20). 0: a k-d tree of the
+    /// down-sampled view, as for views given as clouds.
     pub pixel_window: usize,
     /// Drop points seen at more than this angle between their normal and the ray to the camera,
     /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
@@ -203,7 +203,7 @@ impl Default for FuseConfig {
             view_voxel: VoxelParams::default(),
             outliers: SorParams::default(),
             normals: NormalParams::default(),
-            pixel_window: 0,
+            pixel_window: 3,
             max_incidence_rad: Some(80f64.to_radians()),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
             registration: RegistrationConfig::default(),
