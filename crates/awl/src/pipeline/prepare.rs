@@ -2,7 +2,8 @@
 //! down-sampling, statistical outlier removal and normals oriented toward the view's camera (one
 //! stage): a depth view's outliers and normals come from its pixel grid (`organized`, `pixel_window`
 //! > 0, the default), before the voxel grid (which averages the normals); a cloud view (or any view
-//! with `pixel_window = 0`) is down-sampled first, then cleaned with one k-NN pass (`clean`). Each stage runs over all views in parallel.
+//! with `pixel_window = 0`) is down-sampled first, then cleaned with one k-NN pass (`clean`). Each
+//! stage runs over all views in parallel.
 
 use std::time::Instant;
 

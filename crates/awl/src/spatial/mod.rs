@@ -82,14 +82,7 @@ impl KdIndex {
         if self.len == 0 {
             return None;
         }
-        let one = NonZeroUsize::MIN;
-        self.tree
-            .query(&to_array(query))
-            .nearest_n::<SquaredEuclidean<f32>>(one)
-            .within(radius_m * radius_m)
-            .execute()
-            .first()
-            .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
+        self.nearest_n_within(query, NonZeroUsize::MIN, radius_m).next()
     }
 
     /// The `k` nearest points within `radius_m` (inclusive), nearest first: [`KdIndex::knn`]'s
@@ -97,6 +90,17 @@ impl KdIndex {
     /// (`knn` is this with no bound).
     pub fn knn_within(&self, query: &Point3<f32>, k: usize, radius_m: f32) -> Vec<Neighbor> {
         let Some(k) = NonZeroUsize::new(k.min(self.len)) else { return Vec::new() };
+        self.nearest_n_within(query, k, radius_m).collect()
+    }
+
+    /// The tree's bounded `k`-nearest query, nearest first (`nearest_within` takes the first,
+    /// `knn_within` all).
+    fn nearest_n_within(
+        &self,
+        query: &Point3<f32>,
+        k: NonZeroUsize,
+        radius_m: f32,
+    ) -> impl Iterator<Item = Neighbor> + use<> {
         self.tree
             .query(&to_array(query))
             .nearest_n::<SquaredEuclidean<f32>>(k)
@@ -104,7 +108,6 @@ impl KdIndex {
             .execute()
             .into_iter()
             .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
-            .collect()
     }
 
     /// The `k` nearest points of each of `points`, in order, into `emit(i, neighbours)`: the
