@@ -17,6 +17,7 @@
 //! Output order is by voxel key: x, then y, then z. Parallel (rayon); the output does not depend
 //! on the number of threads (sort by (key, point index), sums in point-index order).
 
+use std::borrow::Cow;
 use std::cmp::Ordering;
 
 use nalgebra::{Point3, Vector3};
@@ -80,31 +81,50 @@ pub fn downsample(cloud: &PointCloud, params: &VoxelParams) -> Result<PointCloud
     downsample_with_counts(cloud, params).map(|r| r.cloud)
 }
 
+/// Like [`downsample`], but borrows `cloud` when it is already its own down-sampling (one point per
+/// voxel, in key order: e.g. an ICP target or a view at its own voxel size) instead of copying it.
+///
+/// # Errors
+/// As [`downsample`].
+pub fn downsample_cow<'a>(cloud: &'a PointCloud, params: &VoxelParams) -> Result<Cow<'a, PointCloud>> {
+    Ok(match runs(cloud, params)? {
+        Some((order, starts)) => Cow::Owned(centroids(cloud, &order, &starts)),
+        None => Cow::Borrowed(cloud),
+    })
+}
+
 /// Like [`downsample`], also returning the number of points merged into each output point.
 ///
 /// # Errors
 /// As [`downsample`].
 pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Result<VoxelResult> {
+    Ok(match runs(cloud, params)? {
+        Some((order, starts)) => VoxelResult {
+            cloud: centroids(cloud, &order, &starts),
+            points_per_voxel: starts.windows(2).map(|w| w[1] - w[0]).collect(),
+        },
+        None => VoxelResult { cloud: cloud.clone(), points_per_voxel: vec![1; cloud.len()] },
+    })
+}
+
+/// The point indices sorted by voxel and the start of each voxel's run (plus the end), or `None`
+/// when the cloud is already its own down-sampling: every point alone in its voxel, in key order
+/// (then the output would be the input, point for point and bit for bit).
+fn runs(cloud: &PointCloud, params: &VoxelParams) -> Result<Option<(Vec<usize>, Vec<usize>)>> {
     params.validate()?;
     cloud.validate("voxel downsample input")?;
-    let (order, starts) = match cloud.bounds() {
-        Some(bounds) => {
-            let grid = Grid::new(&bounds, params.voxel_size_m)?;
-            if grid.one_per_voxel_in_order(&cloud.points) {
-                // Already down-sampled at this size (the ICP target at its own voxel level): the
-                // output would be the input, point for point and bit for bit.
-                return Ok(VoxelResult { cloud: cloud.clone(), points_per_voxel: vec![1; cloud.len()] });
-            }
-            grid.sorted_runs(&cloud.points)
-        }
-        None => (Vec::new(), vec![0]),
-    };
+    let Some(bounds) = cloud.bounds() else { return Ok(Some((Vec::new(), vec![0]))) };
+    let grid = Grid::new(&bounds, params.voxel_size_m)?;
+    Ok((!grid.one_per_voxel_in_order(&cloud.points)).then(|| grid.sorted_runs(&cloud.points)))
+}
+
+/// One centroid (mean normal, mean color) per run of `order`.
+fn centroids(cloud: &PointCloud, order: &[usize], starts: &[usize]) -> PointCloud {
     let run = |w: &[usize]| &order[w[0]..w[1]];
     let points = starts.par_windows(2).map(|w| mean_point(&cloud.points, run(w))).collect();
     let normals = cloud.normals.as_ref().map(|ns| starts.par_windows(2).map(|w| mean_normal(ns, run(w))).collect());
     let colors = cloud.colors.as_ref().map(|cs| starts.par_windows(2).map(|w| mean_color(cs, run(w))).collect());
-    let points_per_voxel = starts.windows(2).map(|w| w[1] - w[0]).collect();
-    Ok(VoxelResult { cloud: PointCloud { points, normals, colors }, points_per_voxel })
+    PointCloud { points, normals, colors }
 }
 
 /// A voxel down-sampling that grows: adding a cloud gives what down-sampling the accumulated
@@ -151,44 +171,73 @@ impl VoxelAccumulator {
             self.cloud = added.cloud;
             return Ok(());
         }
-        let (old, new, counts) = (&self.cloud, &added.cloud, &added.points_per_voxel);
-        let with_normals = old.normals.is_some() && new.normals.is_some();
-        let normal = |c: &PointCloud, i: usize| c.normals.as_ref().map_or_else(Vector3::zeros, |n| n[i]);
+        let (new, counts) = (&added.cloud, &added.points_per_voxel);
+        let with_normals = self.cloud.normals.is_some() && new.normals.is_some();
+        if !with_normals {
+            self.cloud.normals = None;
+        }
         let size = self.params.voxel_size_m;
         // the voxel of a centroid; in range: the down-sampling above checked the added points
         let key = |p: &Point3<f32>| [0, 1, 2].map(|a| floor_i64(f64::from(p[a]) / size));
-        let total = old.len() + new.len();
-        let mut points = Vec::with_capacity(total);
-        let mut normals = Vec::with_capacity(if with_normals { total } else { 0 });
-        let (mut a, mut b) = (0, 0);
-        while a < old.len() || b < new.len() {
-            let order = match (old.points.get(a), new.points.get(b)) {
-                (Some(pa), Some(pb)) => key(pa).cmp(&key(pb)),
-                (Some(_), None) => Ordering::Less,
-                _ => Ordering::Greater,
+        // Merged in place, from the back: the accumulated lists grow by the added voxels, and the
+        // merge writes from the end down. The next write never lands on an unread accumulated
+        // voxel (it stays at or above the unread voxels of both lists together), so the memory is
+        // the accumulated voxels plus the added ones, not two copies of the model.
+        let (old_len, total) = (self.cloud.len(), self.cloud.len() + new.len());
+        let points = &mut self.cloud.points;
+        points.reserve_exact(new.len());
+        points.resize(total, Point3::origin());
+        let mut normals = self.cloud.normals.as_mut();
+        if let Some(ns) = normals.as_deref_mut() {
+            ns.reserve_exact(new.len());
+            ns.resize(total, Vector3::zeros());
+        }
+        let new_normal = |i: usize| new.normals.as_ref().map_or_else(Vector3::zeros, |n| n[i]);
+        let (mut a, mut b, mut w) = (old_len, new.len(), total);
+        while a > 0 || b > 0 {
+            let order = match (a.checked_sub(1), b.checked_sub(1)) {
+                (Some(ia), Some(ib)) => key(&points[ia]).cmp(&key(&new.points[ib])),
+                (Some(_), None) => Ordering::Greater,
+                _ => Ordering::Less,
             };
-            let (p, n) = match order {
-                Ordering::Less => (old.points[a], normal(old, a)),
-                Ordering::Greater => (new.points[b], normal(new, b)),
+            w -= 1;
+            match order {
+                Ordering::Greater => {
+                    points[w] = points[a - 1];
+                    if let Some(ns) = normals.as_deref_mut() {
+                        ns[w] = ns[a - 1];
+                    }
+                }
+                Ordering::Less => {
+                    points[w] = new.points[b - 1];
+                    if let Some(ns) = normals.as_deref_mut() {
+                        ns[w] = new_normal(b - 1);
+                    }
+                }
                 Ordering::Equal => {
                     // the accumulated centroid as one point, the added voxel as its points
-                    let nb = counts[b] as f64;
-                    let p = (old.points[a].coords.cast::<f64>() + new.points[b].coords.cast::<f64>() * nb) / (1.0 + nb);
-                    let (ua, ub) = (normal(old, a), normal(new, b));
-                    let sum = ua.cast::<f64>() + ub.cast::<f64>() * nb;
-                    let norm = sum.norm();
-                    let n = if norm > NORMAL_CANCEL_RATIO * (1.0 + nb) { (sum / norm).cast::<f32>() } else { ua };
-                    (Point3::from(p.cast::<f32>()), n)
+                    let nb = counts[b - 1] as f64;
+                    let p =
+                        (points[a - 1].coords.cast::<f64>() + new.points[b - 1].coords.cast::<f64>() * nb) / (1.0 + nb);
+                    points[w] = Point3::from(p.cast::<f32>());
+                    if let Some(ns) = normals.as_deref_mut() {
+                        let (ua, ub) = (ns[a - 1], new_normal(b - 1));
+                        let sum = ua.cast::<f64>() + ub.cast::<f64>() * nb;
+                        let norm = sum.norm();
+                        ns[w] = if norm > NORMAL_CANCEL_RATIO * (1.0 + nb) { (sum / norm).cast::<f32>() } else { ua };
+                    }
                 }
-            };
-            points.push(p);
-            if with_normals {
-                normals.push(n);
             }
-            a += usize::from(order != Ordering::Greater);
-            b += usize::from(order != Ordering::Less);
+            a -= usize::from(order != Ordering::Less);
+            b -= usize::from(order != Ordering::Greater);
         }
-        self.cloud = PointCloud { points, normals: with_normals.then_some(normals), colors: None };
+        // the merged voxels are [w, total): moved to the front
+        points.copy_within(w.., 0);
+        points.truncate(total - w);
+        if let Some(ns) = normals {
+            ns.copy_within(w.., 0);
+            ns.truncate(total - w);
+        }
         Ok(())
     }
 }

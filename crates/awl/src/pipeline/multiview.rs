@@ -193,6 +193,7 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
             merged.push(i);
         }
     }
+    drop(model); // the sequential pass's targets: not needed by the refinements
     refine(views, config, voxel, anchor, &mut poses, &mut reports)?;
     let mut warnings = Vec::new();
     let joint = refine_joint(views, config, anchor, &mut poses, &reports, &mut warnings)?;

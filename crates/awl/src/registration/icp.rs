@@ -17,7 +17,7 @@ use super::kernel::Kernel;
 use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::filter::voxel::{VoxelParams, downsample};
+use crate::filter::voxel::{VoxelParams, downsample_cow};
 use crate::spatial::KdIndex;
 
 /// One resolution level of the coarse-to-fine schedule.
@@ -117,17 +117,13 @@ pub struct IcpResult {
 }
 
 fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<Cow<'_, PointCloud>> {
-    if voxel_m > 0.0 {
-        downsample(cloud, &VoxelParams { voxel_size_m: voxel_m }).map(Cow::Owned)
-    } else {
-        Ok(Cow::Borrowed(cloud))
-    }
+    if voxel_m > 0.0 { downsample_cow(cloud, &VoxelParams { voxel_size_m: voxel_m }) } else { Ok(Cow::Borrowed(cloud)) }
 }
 
 /// At most `max` points of `cloud`, taken at an even stride (all of them when it has fewer).
-pub(super) fn thin(cloud: PointCloud, max: usize) -> PointCloud {
+pub(super) fn thin(cloud: Cow<'_, PointCloud>, max: usize) -> PointCloud {
     if cloud.len() <= max || max == 0 {
-        return cloud;
+        return cloud.into_owned();
     }
     let picks: Vec<usize> = (0..max).map(|i| i * cloud.len() / max).collect();
     cloud.select(&picks)
@@ -288,7 +284,7 @@ fn run<'a>(
     // A level's clouds and target index do not depend on the pose: the next level's are built
     // while this level iterates (two levels in memory at most).
     let build = |k: usize| -> Result<LevelData<'a>> {
-        let src = thin(level_cloud(source, params.levels[k].voxel_m)?.into_owned(), params.max_source_points);
+        let src = thin(level_cloud(source, params.levels[k].voxel_m)?, params.max_source_points);
         let tgt = target_at(k)?;
         let index = TargetIndex::Tree(KdIndex::new(&tgt.points)?);
         Ok(LevelData { src, tgt, index })

@@ -14,6 +14,8 @@
 //! `Σ w r a` to the `6N` system. Pairs are linearised in parallel and summed in pair order:
 //! the result does not depend on the number of threads.
 
+use std::borrow::Cow;
+
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -21,7 +23,7 @@ use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
 use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::filter::voxel::{VoxelParams, downsample};
+use crate::filter::voxel::{VoxelParams, downsample_cow};
 
 /// What [`refine_jointly`] did, per level.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -38,9 +40,10 @@ pub struct JointLevelStats {
     pub inlier_rmse_m: f64,
 }
 
-/// One view at one level: its down-sampled cloud (camera frame), its tree, its source points.
-struct ViewLevel {
-    cloud: PointCloud,
+/// One view at one level: its down-sampled cloud (camera frame; the view's own when it is already
+/// at the level's voxel size), its index, its source points.
+struct ViewLevel<'a> {
+    cloud: Cow<'a, PointCloud>,
     index: TargetIndex,
     source: PointCloud,
 }
@@ -82,10 +85,13 @@ pub fn refine_jointly(
     Ok(stats)
 }
 
-fn view_level(cloud: &PointCloud, voxel_m: f64, max_source: usize) -> Result<ViewLevel> {
-    let cloud = downsample(cloud, &VoxelParams { voxel_size_m: voxel_m })?;
+fn view_level(cloud: &PointCloud, voxel_m: f64, max_source: usize) -> Result<ViewLevel<'_>> {
+    let mut cloud = downsample_cow(cloud, &VoxelParams { voxel_size_m: voxel_m })?;
+    if let Cow::Owned(c) = &mut cloud {
+        c.colors = None; // the targets need points and normals only
+    }
     let index = TargetIndex::of_view(&cloud.points)?;
-    let source = thin(cloud.clone(), max_source);
+    let source = thin(Cow::Borrowed(&*cloud), max_source);
     Ok(ViewLevel { cloud, index, source })
 }
 

@@ -45,8 +45,9 @@ impl KdIndex {
         if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
             return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
         }
-        let coords: Vec<[f32; 3]> = points.iter().map(to_array).collect();
-        let tree = ImmutableKdTree::new_from_slice(&coords)
+        // the points as they are (`Point3<f32>` is three packed f32): no copy
+        let coords: &[[f32; 3]] = bytemuck::cast_slice(points);
+        let tree = ImmutableKdTree::new_from_slice(coords)
             .map_err(|e| Error::invalid("k-d tree", format!("cannot build: {e:?}")))?;
         Ok(Self { tree, len: points.len() })
     }
