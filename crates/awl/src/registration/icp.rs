@@ -14,7 +14,7 @@ use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
-use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
+use super::solve::{Hint, StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -197,7 +197,7 @@ fn run_level(
     let (mut iterations, mut converged) = (0, false);
     let length = centre_and_length(&move_cloud(src, &t).0).1;
     let mut sys = None;
-    let mut previous = vec![u32::MAX; src.len()];
+    let mut hints = vec![Hint::NONE; src.len()];
     while iterations < level.max_iterations {
         let (moved, moved_normals) = move_cloud(src, &t);
         let centre = centre_and_length(&moved).0;
@@ -210,7 +210,7 @@ fn run_level(
             centre,
             length_m: length,
         };
-        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step, &mut previous);
+        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step, &mut hints);
         iterations += 1;
         sys = Some(s);
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };

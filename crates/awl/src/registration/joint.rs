@@ -20,7 +20,7 @@ use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
-use super::solve::{StepParams, System, Target, TargetIndex, linearise, step_motion};
+use super::solve::{Hint, StepParams, System, Target, TargetIndex, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -111,7 +111,7 @@ fn run_level(
         (poses.iter().map(|p| (p.translation.vector - centre).norm_squared()).sum::<f64>() / n as f64).sqrt().max(0.1);
     let mut out = JointLevelStats { iterations: 0, converged: false, pairs: 0, inliers: 0, inlier_rmse_m: 0.0 };
     // Each pair's previous correspondences (see `pair_sums`).
-    let mut hints: Vec<Vec<u32>> = pairs.iter().map(|&(i, _)| vec![u32::MAX; views[i].source.len()]).collect();
+    let mut hints: Vec<Vec<Hint>> = pairs.iter().map(|&(i, _)| vec![Hint::NONE; views[i].source.len()]).collect();
     let step = StepParams {
         max_distance_m: level.max_correspondence_m,
         max_tangential_m: params.max_tangential_voxels.map(|k| k * level.voxel_m),
@@ -187,14 +187,14 @@ fn pair_system(
     vi: &ViewLevel,
     vj: &ViewLevel,
     (world_from_i, world_from_j): (&Isometry3<f64>, &Isometry3<f64>),
-    previous: &mut [u32],
+    hints: &mut [Hint],
     step: &StepParams,
 ) -> Option<System> {
     let j_from_world = world_from_j.inverse();
     let (moved, moved_normals) = move_cloud(&vi.source, &(j_from_world * world_from_i));
     let target = Target { points: &vj.cloud.points, normals: vj.cloud.normals.as_deref()?, index: &vj.index };
     let centre = (j_from_world * Point3::from(step.centre)).coords;
-    let s = linearise(&moved, moved_normals.as_deref(), &target, &StepParams { centre, ..*step }, previous);
+    let s = linearise(&moved, moved_normals.as_deref(), &target, &StepParams { centre, ..*step }, hints);
     if s.inliers == 0 {
         return None;
     }

@@ -96,37 +96,87 @@ pub(crate) fn step_motion(delta: &Vector6<f64>, centre: &Vector3<f64>, length: f
     (about_centre, v.norm(), omega.norm())
 }
 
+/// What the last search of one source point found: its correspondence, or for a miss how far the
+/// nearest target point was known to be and where the source point was then. The pose moves
+/// little between iterations, so the next search is bounded by the previous correspondence (the
+/// nearest target point is at most that far: far fewer cells or tree nodes visited), and a point
+/// that has not moved past a miss's clearance is a miss again without a search. Both are exact:
+/// the correspondences are the ones a full search would find.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hint {
+    /// Index of the correspondence, `u32::MAX` for none.
+    index: u32,
+    /// For a miss: no target point was closer than this (m) to `at`; 0 when unknown.
+    clear_m: f32,
+    at: Point3<f32>,
+}
+
+impl Hint {
+    /// Nothing known yet.
+    pub const NONE: Hint = Hint { index: u32::MAX, clear_m: 0.0, at: Point3::new(0.0, 0.0, 0.0) };
+}
+
+/// A miss searches this much farther than the gate, to learn a clearance that lets the next
+/// iterations skip the point while it moves less than the extra reach.
+const MISS_REACH: f32 = 1.5;
+
+/// The nearest target point within `max_m` of `q`, searched as `hint` allows (see [`Hint`]); the
+/// hint is updated.
+fn correspondence(
+    index: &TargetIndex,
+    points: &[Point3<f32>],
+    q: &Point3<f32>,
+    max_m: f32,
+    hint: &mut Hint,
+) -> Option<Neighbor> {
+    // relative and absolute slack for f32 rounding of the distances
+    let widen = |d: f32| d * (1.0 + 1e-4) + 1e-6;
+    if let Some(prev) = points.get(hint.index as usize) {
+        // a hair wider than the previous correspondence, so that it stays inside
+        let found = index.nearest_within(q, widen((prev - q).norm()).min(max_m));
+        *hint = Hint { index: found.map_or(u32::MAX, |nb| nb.index), ..Hint::NONE };
+        return found;
+    }
+    if hint.clear_m > 0.0 && widen((q - hint.at).norm()) + widen(max_m) < hint.clear_m {
+        return None; // still farther than the gate from every target point
+    }
+    let reach = MISS_REACH * max_m;
+    let found = index.nearest_within(q, reach);
+    match found {
+        Some(nb) if nb.dist_sq <= max_m * max_m => {
+            *hint = Hint { index: nb.index, ..Hint::NONE };
+            found
+        }
+        _ => {
+            let clear_m = found.map_or(reach, |nb| nb.dist_sq.sqrt());
+            *hint = Hint { index: u32::MAX, clear_m, at: *q };
+            None
+        }
+    }
+}
+
 /// Builds the weighted normal equations for moved source points (`moved`, in the target frame,
 /// with optional moved normals).
 ///
-/// `previous` holds each source point's correspondence of the previous iteration (`u32::MAX`:
-/// none) and is updated. The pose moves little between iterations, so the distance to the previous
-/// correspondence bounds the search radius: the nearest target point is the same (it is at most
-/// that far), found with far fewer tree nodes visited.
+/// `hints` holds what each source point's search found at the previous iteration (see [`Hint`])
+/// and is updated.
 pub(crate) fn linearise(
     moved: &[Point3<f64>],
     moved_normals: Option<&[Vector3<f64>]>,
     target: &Target<'_>,
     p: &StepParams,
-    previous: &mut [u32],
+    hints: &mut [Hint],
 ) -> System {
     let max_m = p.max_distance_m as f32;
     let partial: Vec<System> = moved
         .par_chunks(CHUNK)
-        .zip(previous.par_chunks_mut(CHUNK))
+        .zip(hints.par_chunks_mut(CHUNK))
         .enumerate()
         .map(|(c, (chunk, hints))| {
             let mut sys = System::zero();
             for (j, (s, hint)) in chunk.iter().zip(hints.iter_mut()).enumerate() {
                 let q = s.cast::<f32>();
-                let radius = match target.points.get(*hint as usize) {
-                    // a hair wider than the previous correspondence, so that it stays inside
-                    Some(prev) => ((prev - q).norm() * (1.0 + 1e-4) + 1e-6).min(max_m),
-                    None => max_m,
-                };
-                let found = target.index.nearest_within(&q, radius);
-                *hint = found.map_or(u32::MAX, |nb| nb.index);
-                let Some(nb) = found else { continue };
+                let Some(nb) = correspondence(target.index, target.points, &q, max_m, hint) else { continue };
                 let t = target.points[nb.index as usize].cast::<f64>();
                 let n = target.normals[nb.index as usize].cast::<f64>();
                 if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals) {
@@ -158,4 +208,64 @@ pub(crate) fn linearise(
         })
         .collect();
     partial.iter().fold(System::zero(), |acc, s| acc.add(s))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    /// A source drifting in small steps (and one large jump) over a target seen from the origin:
+    /// the hinted searches (bounded by the previous correspondence, misses skipped within their
+    /// clearance) find what a fresh search within the gate finds, with both indexes.
+    #[test]
+    fn hinted_searches_find_the_fresh_searchs_correspondences() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        // a wavy sheet at ~1 m and a sparse cloud nearer the camera
+        let mut target = Vec::new();
+        for a in 0..80 {
+            for b in 0..60 {
+                let (x, y) = (a as f32 * 0.004 - 0.16, b as f32 * 0.004 - 0.12);
+                target.push(Point3::new(x, y, 1.0 + 0.02 * (x * 40.0).sin() + 0.002 * rng.random::<f32>()));
+            }
+        }
+        for _ in 0..200 {
+            target.push(Point3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, 0.4 + rng.random::<f32>()));
+        }
+        // source points near the sheet, and far from everything (misses)
+        let mut source: Vec<Point3<f32>> = (0..1500)
+            .map(|i| {
+                let far = if i % 3 == 0 { 0.05 + 0.1 * rng.random::<f32>() } else { 0.0 };
+                Point3::new(
+                    0.4 * rng.random::<f32>() - 0.2,
+                    0.3 * rng.random::<f32>() - 0.15,
+                    1.0 + far + 0.01 * (rng.random::<f32>() - 0.5),
+                )
+            })
+            .collect();
+        let max_m = 0.012;
+        let indexes = [
+            TargetIndex::Tree(KdIndex::new(&target).expect("tree")),
+            TargetIndex::Grid(ProjectiveGrid::new(&target).expect("grid")),
+        ];
+        for index in &indexes {
+            let mut hints = vec![Hint::NONE; source.len()];
+            let (mut hits, mut misses) = (0, 0);
+            for step in 0..40 {
+                let shift = if step == 20 { 0.02 } else { 0.0004 };
+                let d = Vector3::new(shift, -0.5 * shift, 0.3 * shift);
+                for p in source.iter_mut() {
+                    *p += d;
+                }
+                for (q, hint) in source.iter().zip(hints.iter_mut()) {
+                    let got = correspondence(index, &target, q, max_m, hint);
+                    let nearest = target.iter().map(|t| (t - q).norm_squared()).fold(f32::INFINITY, f32::min);
+                    let want = (nearest <= max_m * max_m).then_some(nearest);
+                    assert_eq!(got.map(|n| n.dist_sq), want, "step {step}, {q:?}");
+                    if got.is_some() { hits += 1 } else { misses += 1 }
+                }
+            }
+            assert!(hits > 10_000 && misses > 10_000, "{hits} hits, {misses} misses");
+        }
+    }
 }
