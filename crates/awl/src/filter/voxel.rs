@@ -78,7 +78,7 @@ pub struct VoxelResult {
 /// [`Error::Invalid`] for a bad `voxel_size_m`, an inconsistent or non-finite cloud, or a voxel so
 /// small that a voxel coordinate exceeds ±2^62.
 pub fn downsample(cloud: &PointCloud, params: &VoxelParams) -> Result<PointCloud> {
-    downsample_with_counts(cloud, params).map(|r| r.cloud)
+    downsample_cow(cloud, params).map(Cow::into_owned)
 }
 
 /// Like [`downsample`], but borrows `cloud` when it is already its own down-sampling (one point per

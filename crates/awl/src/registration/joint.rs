@@ -110,7 +110,7 @@ fn run_level(
     let length =
         (poses.iter().map(|p| (p.translation.vector - centre).norm_squared()).sum::<f64>() / n as f64).sqrt().max(0.1);
     let mut out = JointLevelStats { iterations: 0, converged: false, pairs: 0, inliers: 0, inlier_rmse_m: 0.0 };
-    // Each pair's previous correspondences (see `pair_sums`).
+    // What each pair's source points found at the previous step (see `Hint`).
     let mut hints: Vec<Vec<Hint>> = pairs.iter().map(|&(i, _)| vec![Hint::NONE; views[i].source.len()]).collect();
     let step = StepParams {
         max_distance_m: level.max_correspondence_m,
@@ -179,8 +179,8 @@ fn run_level(
     out
 }
 
-/// View `i`'s source points against view `j`: `linearise` in view `j`'s frame (so `previous`,
-/// each source point's correspondence at the previous step, bounds the search as in pairwise ICP),
+/// View `i`'s source points against view `j`: `linearise` in view `j`'s frame (so `hints`, what
+/// each source point found at the previous step, bound or skip its search as in pairwise ICP),
 /// then turned into the world frame (`a_world = diag(R_j, R_j) a_j`); `None` without
 /// correspondences. `step.centre` is in the world frame.
 fn pair_system(
