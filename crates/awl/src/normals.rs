@@ -1,6 +1,6 @@
 //! Surface normals from local neighbourhoods, and their orientation toward viewpoints.
 //!
-//! Input: positions (metres, any frame) and a [`KdIndex`] built over exactly those positions.
+//! Input: positions (metres, any frame); neighbourhoods from one all-points k-NN pass (`spatial`).
 //! Output, per point: an unoriented unit normal (the direction of least variance of the
 //! neighbourhood, Open3D's `EstimateNormals` with `KDTreeSearchParamHybrid`) and the surface
 //! variation λ_min / (λ0 + λ1 + λ2) of the neighbourhood covariance (PCL's and Open3D's
@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::spatial::{CHAIN, KdIndex};
+use crate::spatial::knn_map;
 
 /// Neighbourhoods whose middle covariance eigenvalue is below this fraction of the trace are
 /// treated as collinear: the normal is undefined there (see [`NormalsResult`]).
@@ -93,27 +93,18 @@ impl NormalsResult {
 /// on planar, linear and isotropic neighbourhoods (Eberly's, as in Open3D's `FastEigen3x3`).
 ///
 /// # Errors
-/// [`Error::Invalid`] for bad parameters or when `index` does not cover exactly `points`.
-pub fn estimate(points: &[Point3<f32>], index: &KdIndex, params: &NormalParams) -> Result<NormalsResult> {
+/// [`Error::Invalid`] for bad parameters or a non-finite point.
+pub fn estimate(points: &[Point3<f32>], params: &NormalParams) -> Result<NormalsResult> {
     params.validate()?;
-    if index.len() != points.len() {
-        return Err(Error::invalid("normals", format!("index has {} points, cloud {}", index.len(), points.len())));
-    }
     let r2 = params.radius_m.map_or(f32::INFINITY, |r| (r * r) as f32);
-    let mut normals = vec![Vector3::zeros(); points.len()];
-    let mut curvature = vec![f32::NAN; points.len()];
-    normals.par_chunks_mut(CHAIN).zip(curvature.par_chunks_mut(CHAIN)).zip(points.par_chunks(CHAIN)).for_each(
-        |((normals, curvature), chunk)| {
-            index.knn_each(chunk, params.neighbors, |i, neighbors| {
-                let p = &chunk[i];
-                let count = neighbors.iter().take_while(|n| n.dist_sq <= r2).count();
-                let fit = covariance(points, p, neighbors[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
-                if let Some((n, c)) = fit {
-                    (normals[i], curvature[i]) = (n.cast::<f32>(), c as f32);
-                }
-            });
-        },
-    );
+    let fits = knn_map(points, params.neighbors, |i, neighbors| {
+        let count = neighbors.iter().take_while(|n| n.dist_sq <= r2).count();
+        let fit =
+            covariance(points, &points[i], neighbors[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
+        fit.map_or(([0.0; 3], f32::NAN), |(n, c)| (n.cast::<f32>().into(), c as f32))
+    })?;
+    let (normals, curvature): (Vec<Vector3<f32>>, Vec<f32>) =
+        fits.into_iter().map(|(n, c)| (Vector3::from(n), c)).unzip();
     let degenerate = curvature.iter().filter(|c| c.is_nan()).count();
     Ok(NormalsResult { normals, curvature, degenerate })
 }
@@ -163,8 +154,7 @@ pub fn with_normals(cloud: &PointCloud, params: &NormalParams, viewpoint: Option
     if cloud.normals.is_some() {
         return Ok(cloud.clone());
     }
-    let index = KdIndex::new(&cloud.points)?;
-    let mut result = estimate(&cloud.points, &index, params)?;
+    let mut result = estimate(&cloud.points, params)?;
     if let Some(v) = viewpoint {
         orient_towards(&cloud.points, &mut result.normals, &v)?;
     }
@@ -420,8 +410,7 @@ mod tests {
     fn plane_normals_within_one_degree() {
         let normal = Vector3::new(0.3, -0.2, 1.0).normalize();
         let points = noisy_plane(5_000, &normal, 0.03e-3, 1);
-        let index = KdIndex::new(&points).expect("index");
-        let result = estimate(&points, &index, &NormalParams::default()).expect("normals");
+        let result = estimate(&points, &NormalParams::default()).expect("normals");
         assert_eq!(result.degenerate, 0);
         let errors: Vec<f64> = result.normals.iter().map(|n| angle_deg(n, &normal)).collect();
         let (mean, max) = stats(&errors);
@@ -437,8 +426,7 @@ mod tests {
     #[test]
     fn sphere_normals_are_radial_and_orient_inward_or_outward() {
         let points = noisy_sphere(50_000, 0.2, 0.05e-3, 2);
-        let index = KdIndex::new(&points).expect("index");
-        let mut result = estimate(&points, &index, &NormalParams::default()).expect("normals");
+        let mut result = estimate(&points, &NormalParams::default()).expect("normals");
         assert_eq!(result.degenerate, 0);
         let radial = |p: &Point3<f32>| p.coords.cast::<f64>() - SPHERE_CENTER;
         let errors: Vec<f64> = points.iter().zip(&result.normals).map(|(p, n)| angle_deg(n, &radial(p))).collect();
@@ -488,8 +476,7 @@ mod tests {
                 }
             }
         }
-        let index = KdIndex::new(&points).expect("index");
-        let result = estimate(&points, &index, &NormalParams::default()).expect("normals");
+        let result = estimate(&points, &NormalParams::default()).expect("normals");
         let corner = result.curvature[0];
         let far = points.iter().position(|p| (p - Point3::new(0.03, 0.03, 0.0)).norm() < 1e-6).expect("grid point");
         println!("curvature: corner {corner:.4}, plane {:.2e}", result.curvature[far]);
@@ -501,10 +488,9 @@ mod tests {
     #[test]
     fn same_output_with_one_and_two_threads() {
         let points = noisy_sphere(5_000, 0.2, 0.5e-3, 3);
-        let index = KdIndex::new(&points).expect("index");
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-            pool.install(|| estimate(&points, &index, &NormalParams::default()).expect("normals"))
+            pool.install(|| estimate(&points, &NormalParams::default()).expect("normals"))
         };
         let (one, two) = (run(1), run(2));
         let bits = |r: &NormalsResult| {
@@ -516,15 +502,14 @@ mod tests {
 
     #[test]
     fn degenerate_inputs() {
-        let empty = estimate(&[], &KdIndex::new(&[]).expect("index"), &NormalParams::default()).expect("empty");
+        let empty = estimate(&[], &NormalParams::default()).expect("empty");
         assert!(empty.normals.is_empty() && empty.curvature.is_empty() && empty.degenerate == 0);
 
         // Two isolated points, a collinear run, a coincident triple.
         let mut points = vec![Point3::new(1.0, 0.0, 0.0), Point3::new(-1.0, 0.0, 0.0)];
         points.extend((0..10).map(|i| Point3::new(0.0, i as f32 * 1e-3, 0.0)));
         points.extend([Point3::new(0.0, 0.0, 0.5); 3]);
-        let index = KdIndex::new(&points).expect("index");
-        let result = estimate(&points, &index, &NormalParams::default()).expect("normals");
+        let result = estimate(&points, &NormalParams::default()).expect("normals");
         assert_eq!(result.degenerate, points.len());
         assert!(result.normals.iter().all(|n| *n == Vector3::zeros()));
         assert!(result.valid_indices().is_empty() && !result.is_valid(0) && !result.is_valid(99));
@@ -534,10 +519,10 @@ mod tests {
             NormalParams { radius_m: Some(0.0), ..Default::default() },
             NormalParams { radius_m: Some(f64::NAN), ..Default::default() },
         ] {
-            let err = estimate(&points, &index, &params).expect_err("invalid params");
+            let err = estimate(&points, &params).expect_err("invalid params");
             assert!(matches!(err, Error::Invalid { .. }), "{err}");
         }
-        assert!(estimate(&points[1..], &index, &NormalParams::default()).is_err());
+        assert!(estimate(&[Point3::new(0.0, f32::NAN, 0.0)], &NormalParams::default()).is_err());
         let json: NormalParams = serde_json::from_str(r#"{"neighbors": 30}"#).expect("json");
         assert_eq!(json, NormalParams { neighbors: 30, radius_m: Some(0.01) });
         assert!(serde_json::from_str::<NormalParams>(r#"{"neighbours": 30}"#).is_err());

@@ -9,7 +9,6 @@ use awl::PointCloud;
 use awl::io::ply::read_ply;
 use awl::normals::{NormalParams, estimate};
 use awl::registration::{IcpParams, register};
-use awl::spatial::KdIndex;
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 
@@ -35,8 +34,7 @@ fn conf_poses() -> Vec<(String, Isometry3<f64>)> {
 
 fn load(name: &str) -> PointCloud {
     let mut cloud = read_ply(&data_dir().join(name)).expect("bunny scan");
-    let index = KdIndex::new(&cloud.points).expect("index");
-    let normals = estimate(&cloud.points, &index, &NormalParams { neighbors: 20, radius_m: Some(0.005) }).expect("n");
+    let normals = estimate(&cloud.points, &NormalParams { neighbors: 20, radius_m: Some(0.005) }).expect("n");
     let keep = normals.valid_indices();
     cloud.normals = Some(normals.normals);
     cloud.select(&keep)

@@ -11,9 +11,11 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use nalgebra::Point3;
+
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::spatial::{KdIndex, KnnTable, Neighbor};
+use crate::spatial::{KdIndex, KnnTable, Neighbor, knn_map};
 
 /// Statistical outlier removal parameters (Open3D's `nb_neighbors`, `std_ratio`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -96,36 +98,28 @@ pub fn statistical_detailed(cloud: &PointCloud, params: &SorParams) -> Result<So
     if cloud.is_empty() {
         return Ok(SorResult { kept: Vec::new(), mean_distance_m: 0.0, std_distance_m: 0.0, threshold_m: 0.0 });
     }
-    let index = KdIndex::new(&cloud.points)?;
-    let table = KnnTable::new(&cloud.points, &index, params.neighbors)?;
-    Ok(from_table(cloud, &index, &table, params))
+    let points = &cloud.points;
+    let mean_dist = knn_map(points, params.neighbors, |i, row| mean_distance(points, i, row))?;
+    Ok(from_mean_distances(&mean_dist, params))
 }
 
-/// Like [`statistical_detailed`], with k-NN lists already computed: `table` (from `index`, both over
-/// exactly the cloud's points) with at least `params.neighbors` per row unless the cloud is
-/// smaller. A row's first `params.neighbors` entries are used when the next entry is strictly
-/// farther (the nearest points are then the same whatever the tree); when it ties, that point is
-/// queried again with exactly `params.neighbors`, as [`statistical`] does. Same result as
+/// Like [`statistical_detailed`], with k-NN lists already computed: `table`, over exactly the
+/// cloud's points, with at least `params.neighbors` per row unless the cloud is smaller (a row's
+/// first `params.neighbors` entries are the `params.neighbors`-row). Same result as
 /// [`statistical_detailed`], bit for bit. This is how `awl fuse` shares one k-NN pass between
 /// outlier removal and normals.
 ///
 /// # Errors
 /// As [`statistical`]; also [`Error::Invalid`] when the table or the index does not match the cloud.
-pub fn statistical_from_knn(
-    cloud: &PointCloud,
-    index: &KdIndex,
-    table: &KnnTable,
-    params: &SorParams,
-) -> Result<SorResult> {
+pub fn statistical_from_knn(cloud: &PointCloud, table: &KnnTable, params: &SorParams) -> Result<SorResult> {
     params.validate()?;
     cloud.validate("statistical outlier removal input")?;
     let k = params.neighbors.min(cloud.len());
-    if table.k() < k || index.len() != cloud.len() || (k > 0 && table.row_count() != cloud.len()) {
+    if table.k() < k || (k > 0 && table.row_count() != cloud.len()) {
         let msg = format!(
-            "k-NN table of {} x {} and index of {} for {} points and {} neighbours",
+            "k-NN table of {} x {} for {} points and {} neighbours",
             table.row_count(),
             table.k(),
-            index.len(),
             cloud.len(),
             k
         );
@@ -134,33 +128,30 @@ pub fn statistical_from_knn(
     if cloud.is_empty() {
         return Ok(SorResult { kept: Vec::new(), mean_distance_m: 0.0, std_distance_m: 0.0, threshold_m: 0.0 });
     }
-    Ok(from_table(cloud, index, table, params))
+    let points = &cloud.points;
+    let mean_dist: Vec<f64> = (0..points.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| mean_distance(points, i, &table.row(i)[..k]))
+        .collect();
+    Ok(from_mean_distances(&mean_dist, params))
 }
 
-/// The statistics and the kept points from a checked, non-empty cloud and its table.
-fn from_table(cloud: &PointCloud, index: &KdIndex, table: &KnnTable, params: &SorParams) -> SorResult {
-    let k = params.neighbors.min(cloud.len());
-    let points = &cloud.points;
-    let mean_dist: Vec<f64> = points
-        .par_iter()
-        .enumerate()
-        .with_min_len(256)
-        .map_init(Vec::new, |d, (i, p)| {
-            let q = p.cast::<f64>();
-            let row = table.row(i);
-            let distance = |nb: &Neighbor| (points[nb.index as usize].cast::<f64>() - q).norm();
-            d.clear();
-            if row.len() == k || row[k - 1].dist_sq < row[k].dist_sq {
-                d.extend(row[..k].iter().map(distance));
-            } else {
-                d.extend(index.knn(p, k).iter().map(distance));
-            }
-            // Nearest first, as Open3D sums them.
-            d.sort_unstable_by(f64::total_cmp);
-            d.iter().sum::<f64>() / d.len() as f64
-        })
-        .collect();
-    from_mean_distances(&mean_dist, params)
+/// Point `i`'s mean distance to the points of its row (f64, summed nearest first as Open3D does).
+fn mean_distance(points: &[Point3<f32>], i: usize, row: &[Neighbor]) -> f64 {
+    let q = points[i].cast::<f64>();
+    let (mut stack, mut heap) = ([0.0f64; 64], Vec::new());
+    let d: &mut [f64] = if row.len() <= stack.len() {
+        &mut stack[..row.len()]
+    } else {
+        heap.resize(row.len(), 0.0);
+        &mut heap
+    };
+    for (x, nb) in d.iter_mut().zip(row) {
+        *x = (points[nb.index as usize].cast::<f64>() - q).norm();
+    }
+    d.sort_unstable_by(f64::total_cmp);
+    d.iter().sum::<f64>() / d.len() as f64
 }
 
 /// Open3D's rule on per-point mean neighbour distances (`0` = no neighbour: removed, left out of

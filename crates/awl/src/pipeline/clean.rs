@@ -2,15 +2,13 @@
 //!
 //! `awl fuse` removes statistical outliers (the `k` nearest points, the point included) and then
 //! estimates normals on the points it kept (the `k` nearest kept points within a radius). As two
-//! filters that is two k-d trees and two k-NN queries per point. Here one k-NN table over the
-//! voxelised view (`k + 1` per point) serves both: SOR reads it (see `statistical_from_knn`), and a
-//! kept point's normal neighbourhood is its row with the removed points skipped. That is exactly
-//! what a query in a tree over the kept points returns when the row holds `k + 1` kept points at
-//! strictly increasing distances (the set and its order are then fixed by the distances alone).
-//! Otherwise (a tie at equal distance, whose order is the tree's, or fewer than `k + 1` kept points
-//! in the row) the point is queried in a tree over the kept points, as `with_normals` does. Output:
-//! bit for bit that of `statistical` then `with_normals` on the kept cloud; the second tree is
-//! built (cheap) but queried for about 1 % of the points.
+//! filters that is two k-NN passes. Here one k-NN table over the voxelised view (`k + 1` per point)
+//! serves both: SOR reads it (see `statistical_from_knn`), and a kept point's normal neighbourhood
+//! is its row with the removed points skipped. The table's rows are the nearest points ordered by
+//! (distance, index), and removing points keeps the others' order, so the first `k` kept points
+//! of a row are exactly the row a table over the kept points would hold. A row with fewer than `k`
+//! kept points is searched again in a tree over the kept points (about 1 % of them). Output: bit
+//! for bit that of `statistical` then `with_normals` on the kept cloud.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -65,9 +63,8 @@ pub(crate) fn clean_with_normals(
 ) -> Result<PointCloud> {
     sor.validate()?;
     params.validate()?;
-    let index = KdIndex::new(&cloud.points)?;
-    let table = KnnTable::new(&cloud.points, &index, sor.neighbors.max(params.neighbors + 1))?;
-    let kept = statistical_from_knn(cloud, &index, &table, sor)?.kept;
+    let table = KnnTable::new(&cloud.points, sor.neighbors.max(params.neighbors + 1))?;
+    let kept = statistical_from_knn(cloud, &table, sor)?.kept;
     let out = cloud.select(&kept);
     let mut position = vec![u32::MAX; cloud.len()]; // index in `out` of each kept point
     for (j, &i) in kept.iter().enumerate() {
@@ -83,7 +80,11 @@ pub(crate) fn clean_with_normals(
         .map_init(Vec::new, |buf: &mut Vec<Neighbor>, j| {
             let p = &points[j];
             if !from_row(table.row(kept[j]), &position, k, buf) {
-                *buf = kept_index.knn(p, k);
+                // the k nearest by (distance, index): every point as near as the k-th
+                let reach = kept_index.knn(p, k).last().map_or(0.0, |n| n.dist_sq.sqrt());
+                *buf = kept_index.within(p, reach);
+                buf.sort_unstable_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
+                buf.truncate(k);
             }
             let count = buf.iter().take_while(|n| n.dist_sq <= r2).count();
             let fit = covariance(points, p, buf[..count].iter().map(|n| n.index as usize)).and_then(plane_of);
@@ -94,26 +95,19 @@ pub(crate) fn clean_with_normals(
 }
 
 /// The `k` nearest kept points (indices in the kept cloud) from a row of the full table, into `buf`;
-/// false when the row does not fix them (see the module docs).
+/// false when the row holds fewer than `k` kept points (see the module docs).
 fn from_row(row: &[Neighbor], position: &[u32], k: usize, buf: &mut Vec<Neighbor>) -> bool {
     buf.clear();
-    let mut last = f32::NEG_INFINITY;
     for n in row {
-        let j = position[n.index as usize];
-        if j == u32::MAX {
-            continue;
-        }
-        if n.dist_sq <= last {
-            return false; // a tie: the order among equals is the tree's
-        }
-        last = n.dist_sq;
         if buf.len() == k {
-            return true; // the (k + 1)-th kept point is strictly farther
+            break;
         }
-        buf.push(Neighbor { index: j, dist_sq: n.dist_sq });
+        let j = position[n.index as usize];
+        if j != u32::MAX {
+            buf.push(Neighbor { index: j, dist_sq: n.dist_sq });
+        }
     }
-    // Fewer than k + 1 kept points in the row: enough only if the row is the whole cloud.
-    buf.len() == k && row.len() == position.len()
+    buf.len() == k
 }
 
 #[cfg(test)]

@@ -2,6 +2,9 @@
 //! never sees the crate's types, and [`ProjectiveGrid`] for one depth view's points. Distances
 //! returned are squared, metres².
 
+mod allknn;
+
+pub(crate) use allknn::knn_map;
 pub(crate) mod cells;
 mod projective;
 
@@ -14,11 +17,8 @@ use nalgebra::Point3;
 
 use crate::error::{Error, Result};
 
-/// Consecutive points queried in one chain by [`KdIndex::knn_each`] (the chains run in parallel).
-pub(crate) const CHAIN: usize = 256;
-
 /// A neighbour: index into the indexed point slice, squared distance (m²).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Neighbor {
     /// Index of the point in the slice the index was built from.
     pub index: u32,
@@ -111,29 +111,6 @@ impl KdIndex {
             .map(|r| Neighbor { index: r.item, dist_sq: r.distance })
     }
 
-    /// The `k` nearest points of each of `points`, in order, into `emit(i, neighbours)`: the
-    /// distances [`KdIndex::knn`] gives, nearest first, equal distances by index (of points tied at
-    /// the `k`-th distance, which ones make the list is the search's choice, as in `knn`).
-    ///
-    /// Consecutive points are usually close (raster or voxel order), and the previous point's
-    /// `k`-th distance plus the step between them bounds the next one's (its `k` neighbours are at
-    /// most that far), so each query is a bounded search that visits fewer tree nodes. A bound that
-    /// holds fewer than `k` points (rounding) falls back to the unbounded query.
-    pub fn knn_each(&self, points: &[Point3<f32>], k: usize, mut emit: impl FnMut(usize, &[Neighbor])) {
-        let mut previous: Option<(Point3<f32>, f32)> = None;
-        for (i, p) in points.iter().enumerate() {
-            let bounded = previous.map(|(q, r)| self.knn_within(p, k, ((p - q).norm() + r) * (1.0 + 1e-4) + 1e-6));
-            let mut row = match bounded {
-                Some(row) if row.len() >= k.min(self.len) => row,
-                _ => self.knn(p, k),
-            };
-            // the tree orders equal distances by its search path, which the bound changes
-            row.sort_unstable_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
-            previous = row.last().map(|n| (*p, n.dist_sq.sqrt()));
-            emit(i, &row);
-        }
-    }
-
     /// Every point within `radius_m` (inclusive), in no particular order.
     pub fn within(&self, query: &Point3<f32>, radius_m: f32) -> Vec<Neighbor> {
         if self.len == 0 {
@@ -150,35 +127,27 @@ impl KdIndex {
     }
 }
 
-/// The `k` nearest points of every indexed point (the point itself included), nearest first, in one
-/// flat table ([`KdIndex::knn_each`]'s lists: [`KdIndex::knn`]'s distances, equal ones by index): one
-/// k-NN pass whose lists several stages can share (SOR and normals in `awl fuse`). Built in
-/// parallel; the table does not depend on the number of threads.
+/// The `k` nearest points of every point of a set (the point itself included), nearest first, in
+/// one table (see `allknn`): the distances [`KdIndex::knn`] gives, and of points tied at equal
+/// distance the lowest indices first, so a row's first `j` entries are the `j`-row. One k-NN pass
+/// whose rows several stages can share (SOR and normals in `awl fuse`). Built in parallel; the
+/// table does not depend on the number of threads.
 pub struct KnnTable {
     k: usize,
+    /// Rows in the order of the search's tree.
     rows: Vec<Neighbor>,
+    /// The row of each point.
+    position: Vec<u32>,
 }
 
 impl KnnTable {
-    /// The `k` nearest points of each of `points` (fewer when there are fewer points), from `index`,
-    /// which must be built over exactly `points`.
+    /// The `k` nearest points of each of `points` (fewer when there are fewer points).
     ///
     /// # Errors
-    /// [`Error::Invalid`] when `index` does not cover exactly `points`.
-    pub fn new(points: &[Point3<f32>], index: &KdIndex, k: usize) -> Result<Self> {
-        use rayon::prelude::*;
-        if index.len() != points.len() {
-            let msg = format!("index has {} points, cloud {}", index.len(), points.len());
-            return Err(Error::invalid("k-NN table", msg));
-        }
-        let k = k.min(points.len());
-        let mut rows = vec![Neighbor { index: 0, dist_sq: 0.0 }; points.len() * k];
-        if k > 0 {
-            rows.par_chunks_mut(k * CHAIN).zip(points.par_chunks(CHAIN)).for_each(|(rows, chunk)| {
-                index.knn_each(chunk, k, |i, row| rows[i * k..(i + 1) * k].copy_from_slice(row));
-            });
-        }
-        Ok(Self { k, rows })
+    /// [`Error::Invalid`] for a non-finite point.
+    pub fn new(points: &[Point3<f32>], k: usize) -> Result<Self> {
+        let (k, rows, position) = allknn::knn_rows(points, k)?;
+        Ok(Self { k, rows, position })
     }
 
     /// Neighbours per row (`min(k, points)`).
@@ -188,7 +157,7 @@ impl KnnTable {
 
     /// Number of rows (the points the table was built over; 0 when `k` is 0).
     pub fn row_count(&self) -> usize {
-        self.rows.len().checked_div(self.k).unwrap_or(0)
+        self.position.len()
     }
 
     /// The neighbours of point `i`, nearest first.
@@ -196,7 +165,8 @@ impl KnnTable {
     /// # Panics
     /// When `i` is not an index of the points the table was built over.
     pub fn row(&self, i: usize) -> &[Neighbor] {
-        &self.rows[i * self.k..(i + 1) * self.k]
+        let j = self.position[i] as usize;
+        &self.rows[j * self.k..(j + 1) * self.k]
     }
 }
 
@@ -235,9 +205,9 @@ mod tests {
     }
 
     #[test]
-    fn knn_each_and_the_table_give_the_trees_rows() {
-        // random order (far steps: the bound rarely helps) and a raster-ordered noisy surface with
-        // a pixel-like lattice (close steps, equal distances)
+    fn the_table_gives_the_trees_distances_and_ties_by_index() {
+        // random points and a noisy surface with a pixel-like lattice (many equal distances), a
+        // coarser sheet and far stragglers
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         let mut surface: Vec<Point3<f32>> = (0..20_000)
             .map(|i| {
@@ -249,30 +219,16 @@ mod tests {
         surface.extend((0..20).map(|i| Point3::new(3.0 + i as f32, -2.0, 1.0)));
         for (points, k) in [(random_points(6000, 3), 20), (surface, 21), (random_points(50, 4), 60)] {
             let index = KdIndex::new(&points).expect("index");
-            let table = KnnTable::new(&points, &index, k).expect("table");
-            let mut seen = 0;
-            // the same distances; the same points, but for those tied at the k-th distance (either
-            // is a k-th nearest); equal distances ordered by index
-            let same = |i: usize, row: &[Neighbor]| {
-                let tree = index.knn(&points[i], k);
-                let dist = |v: &[Neighbor]| v.iter().map(|n| n.dist_sq).collect::<Vec<_>>();
-                assert_eq!(dist(row), dist(&tree), "point {i}");
-                let last = tree.last().map_or(0.0, |n| n.dist_sq);
-                let inner = |v: &[Neighbor]| {
-                    let mut s: Vec<u32> = v.iter().filter(|n| n.dist_sq < last).map(|n| n.index).collect();
-                    s.sort_unstable();
-                    s
-                };
-                assert_eq!(inner(row), inner(&tree), "point {i}");
-                assert!(row.windows(2).all(|w| (w[0].dist_sq, w[0].index) < (w[1].dist_sq, w[1].index)), "point {i}");
-            };
-            index.knn_each(&points, k, |i, row| {
-                same(i, row);
-                seen += 1;
-            });
-            assert_eq!(seen, points.len());
+            let table = KnnTable::new(&points, k).expect("table");
+            assert_eq!((table.k(), table.row_count()), (k.min(points.len()), points.len()));
             for i in 0..points.len() {
-                same(i, table.row(i));
+                // the k-d tree's distances; every 7th row against brute force (ties by index)
+                let row = table.row(i);
+                let tree: Vec<f32> = index.knn(&points[i], k).iter().map(|n| n.dist_sq).collect();
+                assert_eq!(row.iter().map(|n| n.dist_sq).collect::<Vec<_>>(), tree, "point {i}");
+                if i % 7 == 0 {
+                    assert_eq!(row, brute::knn(&points, &points[i], k).as_slice(), "point {i}");
+                }
             }
         }
     }

@@ -1,0 +1,442 @@
+//! The `k` nearest neighbours of every point of a set at once (outlier removal, normals).
+//!
+//! The points are ordered into a k-d tree of small leaves (median splits on the widest axis, 16-32
+//! points a leaf, the coordinates copied in tree order, one array per axis, so a leaf scan is a
+//! plain loop) and answered leaf by leaf, each query as a search within a reach that surely holds
+//! its `k` nearest points: the previous query's `k`-th distance plus the step between them (the
+//! nearest query of the leaf already answered), or for a leaf's first query the `k`-th distance
+//! among its seed (the smallest subtree about it with `2k` points). Neighbouring queries make the
+//! reach tight (about 2x the `k` points are collected), the search starts below every ancestor
+//! whose other side is out of reach, and candidates are kept as one integer (distance bits, index)
+//! that sorts without a comparator.
+//!
+//! Each row holds the `k` points smallest by (squared distance, index), nearest first: the
+//! distances [`super::KdIndex::knn`] gives (computed the same way, `dx² + dy² + dz²` in f32), and
+//! among points tied at the `k`-th distance the lowest indices. Reaches are widened by 1e-4
+//! relative + 1 um against rounding, and a box's distance is, in floating point too, at most the
+//! distance of any point in it (rounding is monotonic): the rows are exact. Parallel over leaves;
+//! the rows do not depend on the number of threads.
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use super::Neighbor;
+
+use crate::error::{Error, Result};
+
+/// Largest leaf: a node with more points is split at its median.
+const LEAF: usize = 32;
+/// Below this many points a subtree is ordered on one thread.
+const PARALLEL_SPLIT: usize = 16_384;
+
+/// The points in k-d tree order and the boxes of the implicit tree over them: node `i` covers
+/// tree positions `start..end`, its children are `2i + 1` (`start..mid`) and `2i + 2`
+/// (`mid..end`) with `mid = start + (end - start) / 2`, and it is a leaf when it holds at most
+/// [`LEAF`] points.
+struct LeafTree {
+    xs: Vec<f32>,
+    ys: Vec<f32>,
+    zs: Vec<f32>,
+    /// Index (in the input) of the point at each tree position.
+    ids: Vec<u32>,
+    boxes: Vec<Aabb>,
+}
+
+/// The box of a node's points.
+#[derive(Clone, Copy)]
+struct Aabb {
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+impl Aabb {
+    const EMPTY: Self = Self { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3] };
+
+    fn grow(&mut self, p: [f32; 3]) {
+        for a in 0..3 {
+            self.lo[a] = self.lo[a].min(p[a]);
+            self.hi[a] = self.hi[a].max(p[a]);
+        }
+    }
+
+    /// The axis along which the box is widest (the first of equals).
+    fn widest(&self) -> usize {
+        (0..3).fold(0, |best, a| if self.hi[a] - self.lo[a] > self.hi[best] - self.lo[best] { a } else { best })
+    }
+
+    fn union(&self, o: &Self) -> Self {
+        Self { lo: [0, 1, 2].map(|a| self.lo[a].min(o.lo[a])), hi: [0, 1, 2].map(|a| self.hi[a].max(o.hi[a])) }
+    }
+
+    /// Squared distance from `q` (0 inside).
+    fn gap(&self, q: [f32; 3]) -> f32 {
+        let g = [0, 1, 2].map(|a| (self.lo[a] - q[a]).max(q[a] - self.hi[a]).max(0.0));
+        g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+    }
+}
+
+/// A node: heap index and its range of tree positions.
+#[derive(Clone, Copy)]
+struct Node {
+    id: usize,
+    start: usize,
+    end: usize,
+}
+
+impl Node {
+    fn is_leaf(&self) -> bool {
+        self.end - self.start <= LEAF
+    }
+
+    fn children(&self) -> (Node, Node) {
+        let mid = self.start + (self.end - self.start) / 2;
+        (
+            Node { id: 2 * self.id + 1, start: self.start, end: mid },
+            Node { id: 2 * self.id + 2, start: mid, end: self.end },
+        )
+    }
+}
+
+/// Orders `ids` as the tree's positions: each node's range split at its median along the widest
+/// axis of its points' box (ties by index).
+fn partition(points: &[Point3<f32>], ids: &mut [u32]) {
+    if ids.len() <= LEAF {
+        return;
+    }
+    let mut bounds = Aabb::EMPTY;
+    for &i in ids.iter() {
+        bounds.grow(points[i as usize].coords.into());
+    }
+    let axis = bounds.widest();
+    let mid = ids.len() / 2;
+    let key = |&i: &u32| points[i as usize][axis];
+    ids.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)).then(a.cmp(b)));
+    let (left, right) = ids.split_at_mut(mid);
+    if left.len() + right.len() > PARALLEL_SPLIT {
+        rayon::join(|| partition(points, left), || partition(points, right));
+    } else {
+        partition(points, left);
+        partition(points, right);
+    }
+}
+
+impl LeafTree {
+    fn new(points: &[Point3<f32>]) -> Self {
+        let mut ids: Vec<u32> = (0..points.len() as u32).collect();
+        partition(points, &mut ids);
+        let axis = |a: usize| ids.par_iter().map(|&i| points[i as usize][a]).collect::<Vec<f32>>();
+        let (xs, ys, zs) = (axis(0), axis(1), axis(2));
+        let mut depth = 0;
+        let mut largest = points.len();
+        while largest > LEAF {
+            largest = largest.div_ceil(2);
+            depth += 1;
+        }
+        let nodes = (1usize << (depth + 1)) - 1;
+        let mut tree = Self { xs, ys, zs, ids, boxes: vec![Aabb::EMPTY; nodes] };
+        if !points.is_empty() {
+            tree.fill_boxes(Node { id: 0, start: 0, end: points.len() });
+        }
+        tree
+    }
+
+    fn fill_boxes(&mut self, node: Node) {
+        self.boxes[node.id] = if node.is_leaf() {
+            let mut b = Aabb::EMPTY;
+            for j in node.start..node.end {
+                b.grow([self.xs[j], self.ys[j], self.zs[j]]);
+            }
+            b
+        } else {
+            let (l, r) = node.children();
+            self.fill_boxes(l);
+            self.fill_boxes(r);
+            self.boxes[l.id].union(&self.boxes[r.id])
+        };
+    }
+
+    /// The leaves, in tree order, each with its seed: its smallest ancestor (or itself) holding
+    /// at least `2k` points, whose points are scanned first to bound the search.
+    fn leaves(&self, k: usize) -> Vec<(Node, Node)> {
+        let root = Node { id: 0, start: 0, end: self.ids.len() };
+        let mut out = Vec::new();
+        let mut stack = vec![(root, root)];
+        while let Some((node, seed)) = stack.pop() {
+            let seed = if node.end - node.start >= 2 * k { node } else { seed };
+            if node.is_leaf() {
+                out.push((node, seed));
+            } else {
+                let (l, r) = node.children();
+                stack.push((r, seed));
+                stack.push((l, seed));
+            }
+        }
+        out
+    }
+}
+
+/// Scratch space of one worker: a query's candidates (see [`candidate`]), the traversal stack,
+/// one leaf's distances.
+#[derive(Default)]
+struct Scratch {
+    found: Vec<u64>,
+    stack: Vec<Node>,
+    dist: Vec<f32>,
+    /// The current leaf's ancestors, root first, each with its child off the path to the leaf.
+    path: Vec<(Node, usize)>,
+    /// The leaf's queries answered so far and their `k`-th distances (m).
+    done: Vec<([f32; 3], f32)>,
+}
+
+/// A candidate as one integer that orders as (squared distance, index): a non-negative finite
+/// f32's bits order as the float does.
+fn candidate(dist_sq: f32, index: u32) -> u64 {
+    (u64::from(dist_sq.to_bits()) << 32) | u64::from(index)
+}
+
+fn neighbor(c: u64) -> Neighbor {
+    Neighbor { index: c as u32, dist_sq: f32::from_bits((c >> 32) as u32) }
+}
+
+impl LeafTree {
+    /// Squared distances from `q` to the points of `node`, into `dist`.
+    fn distances(&self, q: [f32; 3], node: Node, dist: &mut Vec<f32>) {
+        let r = node.start..node.end;
+        dist.clear();
+        dist.extend(self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r]).map(|((x, y), z)| {
+            let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
+            dx * dx + dy * dy + dz * dz
+        }));
+    }
+
+    /// Every point of the subtree `from` within squared distance `reach` of `q`, into `found`.
+    fn within(&self, from: Node, q: [f32; 3], reach: f32, scratch: &mut Scratch) {
+        let Scratch { found, stack, dist, .. } = scratch;
+        found.clear();
+        stack.clear();
+        stack.push(from);
+        while let Some(node) = stack.pop() {
+            if self.boxes[node.id].gap(q) > reach {
+                continue;
+            }
+            if node.is_leaf() {
+                self.distances(q, node, dist);
+                // every point written, the count advanced for those within reach (no branch)
+                let mut count = found.len();
+                found.resize(count + dist.len(), 0);
+                for (&d, &i) in dist.iter().zip(&self.ids[node.start..node.end]) {
+                    found[count] = candidate(d, i);
+                    count += usize::from(d <= reach);
+                }
+                found.truncate(count);
+            } else {
+                let (l, r) = node.children();
+                stack.push(r);
+                stack.push(l);
+            }
+        }
+    }
+}
+
+/// The rows of `leaf`'s queries (tree order) into `rows` (`k` per query); see the module docs.
+fn leaf_rows(tree: &LeafTree, k: usize, (leaf, seed): (Node, Node), scratch: &mut Scratch, rows: &mut [Neighbor]) {
+    let widen = |r: f32| r * (1.0 + 1e-4) + 1e-6;
+    let seed_reach = |q: [f32; 3], dist: &mut Vec<f32>| {
+        tree.distances(q, seed, dist);
+        let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
+        widen(kth.sqrt())
+    };
+    let (mut path, mut done) = (std::mem::take(&mut scratch.path), std::mem::take(&mut scratch.done));
+    path.clear();
+    done.clear();
+    let mut node = Node { id: 0, start: 0, end: tree.ids.len() };
+    while node.id != leaf.id {
+        let (l, r) = node.children();
+        let (on, off) = if leaf.start < l.end { (l, r) } else { (r, l) };
+        path.push((node, off.id));
+        node = on;
+    }
+    for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
+        let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
+        // the nearest query done (its k-th distance plus the step bounds this one's)
+        let nearest = done
+            .iter()
+            .map(|(p, d)| ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2), *d))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        let reach = match nearest {
+            Some((step_sq, d)) => widen(step_sq.sqrt() + d),
+            None => seed_reach(q, &mut scratch.dist),
+        };
+        // the highest ancestor with a child off the path to the leaf whose box is within reach
+        // (with a margin against rounding): every point outside it lies in such a box
+        let from = |r: f32| {
+            let r = widen(r);
+            path.iter().find(|(_, off)| tree.boxes[*off].gap(q) <= r * r).map_or(leaf, |p| p.0)
+        };
+        tree.within(from(reach), q, reach * reach, scratch);
+        if scratch.found.len() < k {
+            // rounding: the seed's reach always holds k points
+            let reach = seed_reach(q, &mut scratch.dist);
+            tree.within(from(reach), q, reach * reach, scratch);
+        }
+        let found = &mut scratch.found;
+        if found.len() > k {
+            found.select_nth_unstable(k - 1);
+            found.truncate(k);
+        }
+        found.sort_unstable();
+        for (slot, &c) in row.iter_mut().zip(found.iter()) {
+            *slot = neighbor(c);
+        }
+        done.push((q, row[k - 1].dist_sq.sqrt()));
+    }
+    (scratch.path, scratch.done) = (path, done);
+}
+
+/// The tree over `points` and its leaves, after the checks; `None` when `k` is 0 or there are no
+/// points.
+fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<(Node, Node)>)>> {
+    if points.len() > u32::MAX as usize {
+        return Err(Error::invalid("k-NN", format!("{} points: at most 2^32 - 1", points.len())));
+    }
+    if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+        return Err(Error::invalid("k-NN", format!("point {i} is not finite")));
+    }
+    if k == 0 || points.is_empty() {
+        return Ok(None);
+    }
+    let tree = LeafTree::new(points);
+    let leaves = tree.leaves(k);
+    Ok(Some((tree, leaves)))
+}
+
+/// `width` values per point in tree order: each leaf's rows handed to `fill(input indices of
+/// the leaf's points, their rows, their values)`, leaves in parallel.
+fn by_leaf<T: Clone + Default + Send>(
+    tree: &LeafTree,
+    leaves: &[(Node, Node)],
+    k: usize,
+    width: usize,
+    fill: impl Fn(&[u32], &[Neighbor], &mut [T]) + Sync,
+) -> Vec<T> {
+    let mut out = vec![T::default(); tree.ids.len() * width];
+    let mut chunks = Vec::with_capacity(leaves.len());
+    let mut rest = out.as_mut_slice();
+    for (leaf, _) in leaves {
+        let (chunk, tail) = rest.split_at_mut((leaf.end - leaf.start) * width);
+        chunks.push(chunk);
+        rest = tail;
+    }
+    let zero = Neighbor { index: 0, dist_sq: 0.0 };
+    chunks.into_par_iter().zip(leaves.par_iter()).for_each_init(
+        || (Scratch::default(), Vec::new()),
+        |(scratch, rows), (values, &(leaf, seed))| {
+            rows.clear();
+            rows.resize((leaf.end - leaf.start) * k, zero);
+            leaf_rows(tree, k, (leaf, seed), scratch, rows);
+            fill(&tree.ids[leaf.start..leaf.end], rows, values);
+        },
+    );
+    out
+}
+
+/// The tree position of each input point.
+fn positions(tree: &LeafTree) -> Vec<u32> {
+    let mut position = vec![0u32; tree.ids.len()];
+    for (j, &i) in tree.ids.iter().enumerate() {
+        position[i as usize] = j as u32;
+    }
+    position
+}
+
+/// The `k` nearest points of every point (`min(k, n)` per row, the point itself included), see
+/// the module docs: `(k, rows in tree order, the tree position of each point)`.
+///
+/// # Errors
+/// [`Error::Invalid`] for a non-finite point or more than `u32::MAX` points.
+pub(crate) fn knn_rows(points: &[Point3<f32>], k: usize) -> Result<(usize, Vec<Neighbor>, Vec<u32>)> {
+    let k = k.min(points.len());
+    let Some((tree, leaves)) = tree_for(points, k)? else { return Ok((0, Vec::new(), Vec::new())) };
+    let rows = by_leaf(&tree, &leaves, k, k, |_, rows, out: &mut [Neighbor]| out.copy_from_slice(rows));
+    Ok((k, rows, positions(&tree)))
+}
+
+/// `f(i, row)` for every point `i` and its row (the `min(k, n)` nearest points, see the module
+/// docs), in input order, without storing the rows.
+///
+/// # Errors
+/// [`Error::Invalid`] for a non-finite point or more than `u32::MAX` points.
+pub(crate) fn knn_map<T: Copy + Default + Send + Sync>(
+    points: &[Point3<f32>],
+    k: usize,
+    f: impl Fn(usize, &[Neighbor]) -> T + Sync,
+) -> Result<Vec<T>> {
+    let k = k.min(points.len());
+    let Some((tree, leaves)) = tree_for(points, k)? else {
+        return Ok(if k == 0 { (0..points.len()).map(|i| f(i, &[])).collect() } else { Vec::new() });
+    };
+    let values = by_leaf(&tree, &leaves, k, 1, |ids, rows, out: &mut [T]| {
+        for ((v, &i), row) in out.iter_mut().zip(ids).zip(rows.chunks_exact(k)) {
+            *v = f(i as usize, row);
+        }
+    });
+    let position = positions(&tree);
+    Ok(position.par_iter().with_min_len(4096).map(|&j| values[j as usize]).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spatial::brute;
+    use rand::{RngExt, SeedableRng};
+
+    fn check(points: &[Point3<f32>], k: usize) {
+        let (kk, rows, position) = knn_rows(points, k).expect("rows");
+        assert_eq!(kk, k.min(points.len()));
+        let firsts =
+            knn_map(points, k, |i, row| (i, row.first().map(|n| n.index), row.last().map(|n| n.dist_sq))).expect("map");
+        assert_eq!(firsts.len(), points.len());
+        for (i, p) in points.iter().enumerate() {
+            let want = brute::knn(points, p, kk);
+            let j = position[i] as usize;
+            assert_eq!(&rows[j * kk..(j + 1) * kk], want.as_slice(), "point {i} of {}", points.len());
+            assert_eq!(firsts[i], (i, want.first().map(|n| n.index), want.last().map(|n| n.dist_sq)));
+        }
+    }
+
+    #[test]
+    fn rows_equal_brute_force_ties_by_index() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let random: Vec<Point3<f32>> =
+            (0..5000).map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>())).collect();
+        check(&random, 20);
+        // a lattice: many equal distances, ties at the k-th decided by index
+        let lattice: Vec<Point3<f32>> = (0..4000)
+            .map(|i| Point3::new((i % 40) as f32 * 0.002, (i / 40 % 10) as f32 * 0.002, (i / 400) as f32 * 0.002))
+            .collect();
+        check(&lattice, 21);
+        // duplicates, a far cluster, fewer points than k
+        let mut dup = vec![Point3::new(1.0, 2.0, 3.0); 70];
+        dup.extend((0..30).map(|i| Point3::new(50.0 + i as f32, -2.0, 0.5)));
+        check(&dup, 40);
+        check(&random[..7], 20);
+        check(&[], 5);
+    }
+
+    #[test]
+    fn same_rows_with_one_and_two_threads() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(6);
+        let points: Vec<Point3<f32>> = (0..60_000)
+            .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), 0.01 * rng.random::<f32>()))
+            .collect();
+        let run = |t: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("pool").install(|| knn_rows(&points, 20))
+        };
+        assert_eq!(run(1).expect("1"), run(2).expect("2"));
+    }
+
+    #[test]
+    fn non_finite_point_is_an_error() {
+        assert!(knn_rows(&[Point3::new(0.0, f32::NAN, 0.0)], 3).is_err());
+    }
+}
