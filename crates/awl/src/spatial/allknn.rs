@@ -53,10 +53,8 @@ impl Aabb {
     const EMPTY: Self = Self { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3] };
 
     fn grow(&mut self, p: [f32; 3]) {
-        for a in 0..3 {
-            self.lo[a] = self.lo[a].min(p[a]);
-            self.hi[a] = self.hi[a].max(p[a]);
-        }
+        self.lo = [0, 1, 2].map(|a| self.lo[a].min(p[a]));
+        self.hi = [0, 1, 2].map(|a| self.hi[a].max(p[a]));
     }
 
     /// The axis along which the box is widest (the first of equals).
@@ -293,9 +291,12 @@ fn leaf_rows(tree: &LeafTree, k: usize, (leaf, seed): (Node, Node), scratch: &mu
     (scratch.path, scratch.done) = (path, done);
 }
 
+/// Leaves in tree order, each with its seed (see [`LeafTree::leaves`]).
+type Leaves = Vec<(Node, Node)>;
+
 /// The tree over `points` and its leaves, after the checks; `None` when `k` is 0 or there are no
 /// points.
-fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<(Node, Node)>)>> {
+fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Leaves)>> {
     if points.len() > u32::MAX as usize {
         return Err(Error::invalid("k-NN", format!("{} points: at most 2^32 - 1", points.len())));
     }
