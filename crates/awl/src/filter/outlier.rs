@@ -110,7 +110,7 @@ pub fn statistical_detailed(cloud: &PointCloud, params: &SorParams) -> Result<So
 /// outlier removal and normals.
 ///
 /// # Errors
-/// As [`statistical`]; also [`Error::Invalid`] when the table or the index does not match the cloud.
+/// As [`statistical`]; also [`Error::Invalid`] when the table does not match the cloud.
 pub fn statistical_from_knn(cloud: &PointCloud, table: &KnnTable, params: &SorParams) -> Result<SorResult> {
     params.validate()?;
     cloud.validate("statistical outlier removal input")?;

@@ -80,8 +80,9 @@ pub(crate) fn clean_with_normals(
         .map_init(Vec::new, |buf: &mut Vec<Neighbor>, j| {
             let p = &points[j];
             if !from_row(table.row(kept[j]), &position, k, buf) {
-                // the k nearest by (distance, index): every point as near as the k-th
-                let reach = kept_index.knn(p, k).last().map_or(0.0, |n| n.dist_sq.sqrt());
+                // the k nearest by (distance, index): every point as near as the k-th (the reach
+                // widened so that squaring its root cannot drop the k-th)
+                let reach = kept_index.knn(p, k).last().map_or(0.0, |n| n.dist_sq.sqrt() * (1.0 + 1e-6) + 1e-9);
                 *buf = kept_index.within(p, reach);
                 buf.sort_unstable_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq).then(a.index.cmp(&b.index)));
                 buf.truncate(k);

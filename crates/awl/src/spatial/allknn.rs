@@ -153,20 +153,17 @@ impl LeafTree {
         };
     }
 
-    /// The leaves, in tree order, each with its seed: its smallest ancestor (or itself) holding
-    /// at least `2k` points, whose points are scanned first to bound the search.
-    fn leaves(&self, k: usize) -> Vec<(Node, Node)> {
-        let root = Node { id: 0, start: 0, end: self.ids.len() };
+    /// The leaves, in tree order.
+    fn leaves(&self) -> Vec<Node> {
         let mut out = Vec::new();
-        let mut stack = vec![(root, root)];
-        while let Some((node, seed)) = stack.pop() {
-            let seed = if node.end - node.start >= 2 * k { node } else { seed };
+        let mut stack = vec![Node { id: 0, start: 0, end: self.ids.len() }];
+        while let Some(node) = stack.pop() {
             if node.is_leaf() {
-                out.push((node, seed));
+                out.push(node);
             } else {
                 let (l, r) = node.children();
-                stack.push((r, seed));
-                stack.push((l, seed));
+                stack.push(r);
+                stack.push(l);
             }
         }
         out
@@ -237,23 +234,26 @@ impl LeafTree {
 }
 
 /// The rows of `leaf`'s queries (tree order) into `rows` (`k` per query); see the module docs.
-fn leaf_rows(tree: &LeafTree, k: usize, (leaf, seed): (Node, Node), scratch: &mut Scratch, rows: &mut [Neighbor]) {
+fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows: &mut [Neighbor]) {
     let widen = |r: f32| r * (1.0 + 1e-4) + 1e-6;
-    let seed_reach = |q: [f32; 3], dist: &mut Vec<f32>| {
-        tree.distances(q, seed, dist);
-        let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
-        widen(kth.sqrt())
-    };
     let (mut path, mut done) = (std::mem::take(&mut scratch.path), std::mem::take(&mut scratch.done));
     path.clear();
     done.clear();
-    let mut node = Node { id: 0, start: 0, end: tree.ids.len() };
+    let root = Node { id: 0, start: 0, end: tree.ids.len() };
+    let mut node = root;
     while node.id != leaf.id {
         let (l, r) = node.children();
         let (on, off) = if leaf.start < l.end { (l, r) } else { (r, l) };
         path.push((node, off.id));
         node = on;
     }
+    // the seed: the smallest subtree about the leaf with at least 2k points (the root holds k)
+    let seed = path.iter().map(|p| p.0).chain([leaf]).rev().find(|n| n.end - n.start >= 2 * k).unwrap_or(root);
+    let seed_reach = |q: [f32; 3], dist: &mut Vec<f32>| {
+        tree.distances(q, seed, dist);
+        let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
+        widen(kth.sqrt())
+    };
     for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
         let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
         // the nearest query done (its k-th distance plus the step bounds this one's)
@@ -291,12 +291,9 @@ fn leaf_rows(tree: &LeafTree, k: usize, (leaf, seed): (Node, Node), scratch: &mu
     (scratch.path, scratch.done) = (path, done);
 }
 
-/// Leaves in tree order, each with its seed (see [`LeafTree::leaves`]).
-type Leaves = Vec<(Node, Node)>;
-
 /// The tree over `points` and its leaves, after the checks; `None` when `k` is 0 or there are no
 /// points.
-fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Leaves)>> {
+fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<Node>)>> {
     if points.len() > u32::MAX as usize {
         return Err(Error::invalid("k-NN", format!("{} points: at most 2^32 - 1", points.len())));
     }
@@ -307,7 +304,7 @@ fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Leaves
         return Ok(None);
     }
     let tree = LeafTree::new(points);
-    let leaves = tree.leaves(k);
+    let leaves = tree.leaves();
     Ok(Some((tree, leaves)))
 }
 
@@ -315,7 +312,7 @@ fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Leaves
 /// the leaf's points, their rows, their values)`, leaves in parallel.
 fn by_leaf<T: Clone + Default + Send>(
     tree: &LeafTree,
-    leaves: &[(Node, Node)],
+    leaves: &[Node],
     k: usize,
     width: usize,
     fill: impl Fn(&[u32], &[Neighbor], &mut [T]) + Sync,
@@ -323,18 +320,17 @@ fn by_leaf<T: Clone + Default + Send>(
     let mut out = vec![T::default(); tree.ids.len() * width];
     let mut chunks = Vec::with_capacity(leaves.len());
     let mut rest = out.as_mut_slice();
-    for (leaf, _) in leaves {
+    for leaf in leaves {
         let (chunk, tail) = rest.split_at_mut((leaf.end - leaf.start) * width);
         chunks.push(chunk);
         rest = tail;
     }
-    let zero = Neighbor { index: 0, dist_sq: 0.0 };
     chunks.into_par_iter().zip(leaves.par_iter()).for_each_init(
         || (Scratch::default(), Vec::new()),
-        |(scratch, rows), (values, &(leaf, seed))| {
+        |(scratch, rows), (values, &leaf)| {
             rows.clear();
-            rows.resize((leaf.end - leaf.start) * k, zero);
-            leaf_rows(tree, k, (leaf, seed), scratch, rows);
+            rows.resize((leaf.end - leaf.start) * k, Neighbor::default());
+            leaf_rows(tree, k, leaf, scratch, rows);
             fill(&tree.ids[leaf.start..leaf.end], rows, values);
         },
     );
@@ -373,9 +369,8 @@ pub(crate) fn knn_map<T: Copy + Default + Send + Sync>(
     f: impl Fn(usize, &[Neighbor]) -> T + Sync,
 ) -> Result<Vec<T>> {
     let k = k.min(points.len());
-    let Some((tree, leaves)) = tree_for(points, k)? else {
-        return Ok(if k == 0 { (0..points.len()).map(|i| f(i, &[])).collect() } else { Vec::new() });
-    };
+    // no tree: k is 0 (k <= n), every row empty
+    let Some((tree, leaves)) = tree_for(points, k)? else { return Ok((0..points.len()).map(|i| f(i, &[])).collect()) };
     let values = by_leaf(&tree, &leaves, k, 1, |ids, rows, out: &mut [T]| {
         for ((v, &i), row) in out.iter_mut().zip(ids).zip(rows.chunks_exact(k)) {
             *v = f(i as usize, row);
