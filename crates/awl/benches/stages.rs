@@ -33,7 +33,6 @@ use awl::normals::{NormalParams, with_normals};
 use awl::pipeline::FuseConfig;
 use awl::registration::{IcpLevel, IcpParams, register};
 use awl::smooth::{MlsParams, mls};
-use awl::spatial::KdIndex;
 use common::{THREADS, input, pool, scan};
 use divan::Bencher;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -140,10 +139,7 @@ fn icp(b: Bencher, name: &str, stage: &str, voxel_m: Option<f64>, threads: usize
 
 fn cluster(b: Bencher, name: &str, threads: usize) {
     let cloud = voxelised(input(name), LEAF_M);
-    let run = || {
-        let index = KdIndex::new(&cloud.points).expect("index");
-        dbscan(&cloud.points, &index, &DBSCAN).expect("dbscan")
-    };
+    let run = || dbscan(&cloud.points, &DBSCAN).expect("dbscan");
     let c = pool(threads).install(run);
     eprintln!("check: {name} dbscan threads={threads} n_in={} clusters={}", cloud.len(), c.cluster_count());
     b.bench(|| pool(threads).install(run));

@@ -9,8 +9,8 @@
 //! looked up by binary search; each point checks the points of the 27 cells around its own): at DBSCAN
 //! radii this is several times faster than k-d tree radius queries (1 M points on surfaces, 50
 //! neighbours each: the whole of [`dbscan`] takes 0.6 s of CPU, one `KdIndex::within` per point 2.9 s).
-//! Memory is about 35 bytes per point at the peak (5 M points: 80 MB above what the points and their
-//! k-d tree took), with no neighbour list stored (Open3D stores them all and runs out of memory on a few
+//! Memory is about 35 bytes per point at the peak (5 M points: 80 MB above the points themselves; no
+//! k-d tree is built), with no neighbour list stored (Open3D stores them all and runs out of memory on a few
 //! million points, Open3D#1600). Two parallel passes over the cells:
 //! 1. each point counts its neighbours and publishes its class; a core point is joined (lock-free
 //!    union-find) with the neighbours already known to be core. Of two core neighbours, the second to
@@ -30,7 +30,6 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::spatial::KdIndex;
 use crate::spatial::cells::CellGrid as Grid;
 
 /// Parameters of [`dbscan`].
@@ -135,19 +134,13 @@ impl Forest {
     }
 }
 
-fn validate(points: &[Point3<f32>], index: &KdIndex, params: &DbscanParams) -> Result<f32> {
+fn validate(points: &[Point3<f32>], params: &DbscanParams) -> Result<f32> {
     let eps = params.eps_m as f32;
     if !(params.eps_m.is_finite() && eps > 0.0 && eps.is_finite()) {
         return Err(Error::invalid("dbscan eps_m", format!("must be positive and finite, got {}", params.eps_m)));
     }
     if params.min_points == 0 {
         return Err(Error::invalid("dbscan min_points", "must be at least 1 (it counts the point itself)"));
-    }
-    if index.len() != points.len() {
-        return Err(Error::invalid(
-            "dbscan index",
-            format!("indexes {} points but {} points were given", index.len(), points.len()),
-        ));
     }
     if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
         return Err(Error::invalid("dbscan points", format!("point {i} is not finite")));
@@ -260,15 +253,14 @@ fn label(grid: &Grid, class: &[u8], forest: Forest, r2: f32) -> Clustering {
 }
 
 /// DBSCAN over `points` (see the module docs for the passes, the label order and the border rule).
-///
-/// `index` must be built from the same slice; only its size is checked (the neighbour passes use their
-/// own cell grid, which is much faster at DBSCAN radii than the tree's radius queries).
+/// The neighbour passes use a cell grid of `eps_m` cells, which is much faster at DBSCAN radii than
+/// a k-d tree's radius queries (and needs no tree).
 ///
 /// # Errors
 /// [`Error::Invalid`] when `eps_m` is not positive and finite or too small for the cloud's extent (more
-/// than 2 M cells per axis), `min_points` is 0, or `index` does not hold as many points as `points`.
-pub fn dbscan(points: &[Point3<f32>], index: &KdIndex, params: &DbscanParams) -> Result<Clustering> {
-    let eps = validate(points, index, params)?;
+/// than 2 M cells per axis), `min_points` is 0, or a point is not finite.
+pub fn dbscan(points: &[Point3<f32>], params: &DbscanParams) -> Result<Clustering> {
+    let eps = validate(points, params)?;
     if points.is_empty() {
         return Ok(Clustering::default());
     }
@@ -285,8 +277,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn run(points: &[Point3<f32>], eps_m: f64, min_points: usize) -> Clustering {
-        let index = KdIndex::new(points).expect("index");
-        dbscan(points, &index, &DbscanParams { eps_m, min_points }).expect("dbscan")
+        dbscan(points, &DbscanParams { eps_m, min_points }).expect("dbscan")
     }
 
     fn with_threads<T: Send>(n: usize, f: impl FnOnce() -> T + Send) -> T {
@@ -394,11 +385,10 @@ mod tests {
     #[test]
     fn one_and_two_threads_agree() {
         let (points, _) = blobs_and_noise();
-        let index = KdIndex::new(&points).expect("index");
         // Low min_points and a large eps make many border points and near-touching clusters.
         for params in [DbscanParams::default(), DbscanParams { eps_m: 0.003, min_points: 6 }] {
-            let one = with_threads(1, || dbscan(&points, &index, &params).expect("1 thread"));
-            let two = with_threads(2, || dbscan(&points, &index, &params).expect("2 threads"));
+            let one = with_threads(1, || dbscan(&points, &params).expect("1 thread"));
+            let two = with_threads(2, || dbscan(&points, &params).expect("2 threads"));
             assert_eq!(one, two);
         }
         let small = with_threads(2, || run(&points, 0.003, 6));
@@ -465,20 +455,18 @@ mod tests {
         let c = run(&[], 0.01, 10);
         assert!(c.labels.is_empty() && c.sizes.is_empty() && c.largest().is_none());
         let points = vec![Point3::origin(); 3];
-        let index = KdIndex::new(&points).expect("index");
         for params in [
             DbscanParams { eps_m: 0.0, min_points: 3 },
             DbscanParams { eps_m: f64::NAN, min_points: 3 },
             DbscanParams { eps_m: 0.01, min_points: 0 },
         ] {
-            assert!(dbscan(&points, &index, &params).is_err(), "{params:?}");
+            assert!(dbscan(&points, &params).is_err(), "{params:?}");
         }
-        assert!(dbscan(&points[..2], &index, &DbscanParams::default()).is_err());
+        assert!(dbscan(&[Point3::new(f32::NAN, 0.0, 0.0)], &DbscanParams::default()).is_err());
         let far = vec![Point3::origin(), Point3::new(30_000.0, 0.0, 0.0)];
-        let far_index = KdIndex::new(&far).expect("index");
-        assert!(dbscan(&far, &far_index, &DbscanParams::default()).is_err());
-        assert!(dbscan(&far, &far_index, &DbscanParams { eps_m: 1.0, min_points: 1 }).is_ok());
-        let c = dbscan(&points, &index, &DbscanParams { eps_m: 0.01, min_points: 3 }).expect("dbscan");
+        assert!(dbscan(&far, &DbscanParams::default()).is_err());
+        assert!(dbscan(&far, &DbscanParams { eps_m: 1.0, min_points: 1 }).is_ok());
+        let c = dbscan(&points, &DbscanParams { eps_m: 0.01, min_points: 3 }).expect("dbscan");
         assert_eq!((c.labels, c.sizes), (vec![0, 0, 0], vec![3]));
     }
 
@@ -522,14 +510,11 @@ mod tests {
 
     /// Times [`dbscan`] on `points` with the default parameters; prints and returns the clustering.
     fn timed(points: &[Point3<f32>]) -> Clustering {
-        let start = std::time::Instant::now();
-        let index = KdIndex::new(points).expect("index");
-        let built = start.elapsed().as_secs_f64();
         let before = vm_hwm_mb();
         let (start, cpu) = (std::time::Instant::now(), cpu_s());
-        let c = dbscan(points, &index, &DbscanParams::default()).expect("dbscan");
+        let c = dbscan(points, &DbscanParams::default()).expect("dbscan");
         println!(
-            "{} points, {} threads: index {built:.2} s, dbscan {:.2} s ({:.2} s CPU), VmHWM {} MB before dbscan, {} MB after; \
+            "{} points, {} threads: dbscan {:.2} s ({:.2} s CPU), VmHWM {} MB before dbscan, {} MB after; \
              {} clusters, largest {:?}, noise {}",
             points.len(),
             rayon::current_num_threads(),

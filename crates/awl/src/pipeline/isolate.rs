@@ -9,7 +9,6 @@ use crate::cloud::PointCloud;
 use crate::cluster::dbscan;
 use crate::error::Result;
 use crate::segment::remove_floor;
-use crate::spatial::KdIndex;
 
 /// Removes the floor; returns the rest and what was found. A scan without a floor plane is not an
 /// error: the cloud comes back whole and the warning says so.
@@ -35,6 +34,11 @@ pub(crate) fn drop_floor(
     }
 }
 
+/// The index of the point nearest to `q` (the lowest of equals); `None` for no points.
+fn nearest(points: &[Point3<f32>], q: &Point3<f32>) -> Option<usize> {
+    (0..points.len()).min_by(|&a, &b| (points[a] - q).norm_squared().total_cmp(&(points[b] - q).norm_squared()))
+}
+
 /// Keeps the object's cluster.
 pub(crate) fn keep_object(
     cloud: PointCloud,
@@ -44,12 +48,11 @@ pub(crate) fn keep_object(
     if !config.cluster || cloud.is_empty() {
         return Ok((cloud, None));
     }
-    let index = KdIndex::new(&cloud.points)?;
-    let clustering = dbscan(&cloud.points, &index, &config.dbscan)?;
+    let clustering = dbscan(&cloud.points, &config.dbscan)?;
     let chosen = match config.seed_point {
         Some(p) => {
             let q = Point3::new(p[0] as f32, p[1] as f32, p[2] as f32);
-            index.nearest(&q).and_then(|n| usize::try_from(clustering.labels[n.index as usize]).ok())
+            nearest(&cloud.points, &q).and_then(|i| usize::try_from(clustering.labels[i]).ok())
         }
         None => clustering.largest(),
     };
@@ -65,4 +68,31 @@ pub(crate) fn keep_object(
         noise: clustering.noise_count(),
     };
     Ok((cloud.select(&members), Some(report)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two lattice patches 2 mm apart inside, 0.5 m from each other: 400 and 100 points.
+    fn two_patches() -> PointCloud {
+        let patch = |n: usize, x0: f32| {
+            (0..n * n).map(move |k| Point3::new(x0 + 0.002 * (k % n) as f32, 0.002 * (k / n) as f32, 0.0))
+        };
+        PointCloud::from_points(patch(20, 0.0).chain(patch(10, 0.5)).collect())
+    }
+
+    #[test]
+    fn keeps_the_largest_cluster_or_the_one_at_the_seed_point() {
+        let config = IsolateConfig { remove_floor: false, ..IsolateConfig::default() };
+        let mut warnings = Vec::new();
+        let (largest, report) = keep_object(two_patches(), &config, &mut warnings).expect("largest");
+        assert_eq!((largest.len(), report.map(|r| r.clusters)), (400, Some(2)));
+        // the seed point is off the model: its nearest model point decides
+        let seeded = IsolateConfig { seed_point: Some([0.52, 0.01, 0.05]), ..config };
+        let (picked, report) = keep_object(two_patches(), &seeded, &mut warnings).expect("seeded");
+        assert_eq!((picked.len(), report.map(|r| r.removed_clusters)), (100, Some(400)));
+        assert!(picked.points.iter().all(|p| p.x >= 0.5));
+        assert!(warnings.is_empty(), "{warnings:?}");
+    }
 }
