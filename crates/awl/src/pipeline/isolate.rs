@@ -7,7 +7,7 @@ use super::config::IsolateConfig;
 use super::report::{ClusterReport, FloorReport};
 use crate::cloud::PointCloud;
 use crate::cluster::dbscan;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::segment::remove_floor;
 
 /// Removes the floor; returns the rest and what was found. A scan without a floor plane is not an
@@ -40,6 +40,9 @@ fn nearest(points: &[Point3<f32>], q: &Point3<f32>) -> Option<usize> {
 }
 
 /// Keeps the object's cluster.
+///
+/// # Errors
+/// DBSCAN's errors; [`Error::Invalid`] for a seed point that is not finite.
 pub(crate) fn keep_object(
     cloud: PointCloud,
     config: &IsolateConfig,
@@ -51,6 +54,9 @@ pub(crate) fn keep_object(
     let clustering = dbscan(&cloud.points, &config.dbscan)?;
     let chosen = match config.seed_point {
         Some(p) => {
+            if !p.iter().all(|v| v.is_finite()) {
+                return Err(Error::invalid("isolate.seed_point", format!("{p:?} is not a finite point")));
+            }
             let q = Point3::new(p[0] as f32, p[1] as f32, p[2] as f32);
             nearest(&cloud.points, &q).and_then(|i| usize::try_from(clustering.labels[i]).ok())
         }
@@ -94,5 +100,8 @@ mod tests {
         assert_eq!((picked.len(), report.map(|r| r.removed_clusters)), (100, Some(400)));
         assert!(picked.points.iter().all(|p| p.x >= 0.5));
         assert!(warnings.is_empty(), "{warnings:?}");
+        let bad = IsolateConfig { seed_point: Some([f64::NAN, 0.0, 0.0]), ..config };
+        let e = keep_object(two_patches(), &bad, &mut warnings).expect_err("NaN seed point").to_string();
+        assert!(e.contains("isolate.seed_point"), "{e}");
     }
 }
