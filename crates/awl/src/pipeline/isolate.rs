@@ -9,6 +9,7 @@ use crate::cloud::PointCloud;
 use crate::cluster::dbscan;
 use crate::error::{Error, Result};
 use crate::segment::remove_floor;
+use crate::spatial::brute;
 
 /// Removes the floor; returns the rest and what was found. A scan without a floor plane is not an
 /// error: the cloud comes back whole and the warning says so.
@@ -34,11 +35,6 @@ pub(crate) fn drop_floor(
     }
 }
 
-/// The index of the point nearest to `q` (the lowest of equals); `None` for no points.
-fn nearest(points: &[Point3<f32>], q: &Point3<f32>) -> Option<usize> {
-    (0..points.len()).min_by(|&a, &b| (points[a] - q).norm_squared().total_cmp(&(points[b] - q).norm_squared()))
-}
-
 /// Keeps the object's cluster.
 ///
 /// # Errors
@@ -58,7 +54,8 @@ pub(crate) fn keep_object(
                 return Err(Error::invalid("isolate.seed_point", format!("{p:?} is not a finite point")));
             }
             let q = Point3::new(p[0] as f32, p[1] as f32, p[2] as f32);
-            nearest(&cloud.points, &q).and_then(|i| usize::try_from(clustering.labels[i]).ok())
+            // one query: a scan, no tree
+            brute::nearest(&cloud.points, &q).and_then(|n| usize::try_from(clustering.labels[n.index as usize]).ok())
         }
         None => clustering.largest(),
     };

@@ -170,10 +170,20 @@ impl KnnTable {
     }
 }
 
-/// Brute-force neighbour search: the oracle the k-d tree is tested against.
+/// Brute-force neighbour search: the oracle the k-d tree is tested against, and a single query
+/// where building a tree would cost more than the scan.
 pub mod brute {
     use super::Neighbor;
     use nalgebra::Point3;
+
+    /// The nearest point (the lowest index of equals); `None` for no points.
+    pub fn nearest(points: &[Point3<f32>], query: &Point3<f32>) -> Option<Neighbor> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Neighbor { index: i as u32, dist_sq: (p - query).norm_squared() })
+            .min_by(|a, b| a.dist_sq.total_cmp(&b.dist_sq))
+    }
 
     /// The `k` nearest points, nearest first (ties by index).
     pub fn knn(points: &[Point3<f32>], query: &Point3<f32>, k: usize) -> Vec<Neighbor> {
@@ -246,6 +256,7 @@ mod tests {
             within.sort_unstable();
             assert_eq!(within, brute::within(&points, &q, 0.08));
             assert_eq!(index.nearest(&q).map(|n| n.dist_sq), Some(want[0].dist_sq));
+            assert_eq!(brute::nearest(&points, &q), Some(want[0]));
             let bounded = index.nearest_within(&q, 0.05).map(|n| n.dist_sq);
             assert_eq!(bounded, (want[0].dist_sq <= 0.0025).then_some(want[0].dist_sq));
         }
@@ -255,6 +266,10 @@ mod tests {
     fn empty_and_bad_input() {
         let index = KdIndex::new(&[]).expect("empty index");
         assert!(index.knn(&Point3::origin(), 3).is_empty() && index.nearest(&Point3::origin()).is_none());
+        assert!(brute::nearest(&[], &Point3::origin()).is_none());
+        // equal distances: the lowest index
+        let pair = [Point3::new(1.0, 0.0, 0.0), Point3::new(-1.0, 0.0, 0.0)];
+        assert_eq!(brute::nearest(&pair, &Point3::origin()).map(|n| n.index), Some(0));
         assert!(KdIndex::new(&[Point3::new(f32::NAN, 0.0, 0.0)]).is_err());
     }
 }
