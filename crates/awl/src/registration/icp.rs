@@ -18,7 +18,7 @@ use super::solve::{Hint, StepParams, System, Target, TargetIndex, linearise, ste
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
-use crate::spatial::KdIndex;
+use crate::spatial::LeafTree;
 
 /// One resolution level of the coarse-to-fine schedule.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -286,7 +286,7 @@ fn run<'a>(
     let build = |k: usize| -> Result<LevelData<'a>> {
         let src = thin(level_cloud(source, params.levels[k].voxel_m)?, params.max_source_points);
         let tgt = target_at(k)?;
-        let index = TargetIndex::Tree(KdIndex::new(&tgt.points)?);
+        let index = TargetIndex::Tree(LeafTree::new(&tgt.points)?);
         Ok(LevelData { src, tgt, index })
     };
     let mut next = (!params.levels.is_empty()).then(|| build(0)).transpose()?;

@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3
 use rayon::prelude::*;
 
 use super::kernel::Kernel;
-use crate::spatial::{KdIndex, Neighbor, ProjectiveGrid};
+use crate::spatial::{LeafTree, Neighbor, ProjectiveGrid};
 
 const CHUNK: usize = 2048;
 
@@ -21,7 +21,7 @@ pub(crate) struct Target<'a> {
 /// A target's nearest-neighbour search: a k-d tree, or the projective grid of a view kept in its
 /// camera frame (faster for ICP's bounded queries, and instant for points outside the view).
 pub(crate) enum TargetIndex {
-    Tree(KdIndex),
+    Tree(LeafTree),
     Grid(ProjectiveGrid),
 }
 
@@ -31,7 +31,7 @@ impl TargetIndex {
         if points.iter().all(|p| p.z > 0.0) {
             ProjectiveGrid::new(points).map(Self::Grid)
         } else {
-            KdIndex::new(points).map(Self::Tree)
+            LeafTree::new(points).map(Self::Tree)
         }
     }
 
@@ -245,7 +245,7 @@ mod tests {
             .collect();
         let max_m = 0.012;
         let indexes = [
-            TargetIndex::Tree(KdIndex::new(&target).expect("tree")),
+            TargetIndex::Tree(LeafTree::new(&target).expect("tree")),
             TargetIndex::Grid(ProjectiveGrid::new(&target).expect("grid")),
         ];
         for index in &indexes {

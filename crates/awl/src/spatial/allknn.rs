@@ -1,8 +1,7 @@
 //! The `k` nearest neighbours of every point of a set at once (outlier removal, normals).
 //!
-//! The points are ordered into a k-d tree of small leaves (median splits on the widest axis, 16-32
-//! points a leaf, the coordinates copied in tree order, one array per axis, so a leaf scan is a
-//! plain loop) and answered leaf by leaf, each query as a search within a reach that surely holds
+//! The points are ordered into a [`LeafTree`] (median splits on the widest axis, 16-32 points a
+//! leaf, one coordinate array per axis in tree order) and answered leaf by leaf, each query as a search within a reach that surely holds
 //! its `k` nearest points: the previous query's `k`-th distance plus the step between them (the
 //! nearest query of the leaf already answered), or for a leaf's first query the `k`-th distance
 //! among its seed (the smallest subtree about it with `2k` points). Neighbouring queries make the
@@ -21,154 +20,9 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 
 use super::Neighbor;
+use super::leaftree::{LeafTree, Node};
 
-use crate::error::{Error, Result};
-
-/// Largest leaf: a node with more points is split at its median.
-const LEAF: usize = 32;
-/// Below this many points a subtree is ordered on one thread.
-const PARALLEL_SPLIT: usize = 16_384;
-
-/// The points in k-d tree order and the boxes of the implicit tree over them: node `i` covers
-/// tree positions `start..end`, its children are `2i + 1` (`start..mid`) and `2i + 2`
-/// (`mid..end`) with `mid = start + (end - start) / 2`, and it is a leaf when it holds at most
-/// [`LEAF`] points.
-struct LeafTree {
-    xs: Vec<f32>,
-    ys: Vec<f32>,
-    zs: Vec<f32>,
-    /// Index (in the input) of the point at each tree position.
-    ids: Vec<u32>,
-    boxes: Vec<Aabb>,
-}
-
-/// The box of a node's points.
-#[derive(Clone, Copy)]
-struct Aabb {
-    lo: [f32; 3],
-    hi: [f32; 3],
-}
-
-impl Aabb {
-    const EMPTY: Self = Self { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3] };
-
-    fn grow(&mut self, p: [f32; 3]) {
-        self.lo = [0, 1, 2].map(|a| self.lo[a].min(p[a]));
-        self.hi = [0, 1, 2].map(|a| self.hi[a].max(p[a]));
-    }
-
-    /// The axis along which the box is widest (the first of equals).
-    fn widest(&self) -> usize {
-        (0..3).fold(0, |best, a| if self.hi[a] - self.lo[a] > self.hi[best] - self.lo[best] { a } else { best })
-    }
-
-    fn union(&self, o: &Self) -> Self {
-        Self { lo: [0, 1, 2].map(|a| self.lo[a].min(o.lo[a])), hi: [0, 1, 2].map(|a| self.hi[a].max(o.hi[a])) }
-    }
-
-    /// Squared distance from `q` (0 inside).
-    fn gap(&self, q: [f32; 3]) -> f32 {
-        let g = [0, 1, 2].map(|a| (self.lo[a] - q[a]).max(q[a] - self.hi[a]).max(0.0));
-        g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
-    }
-}
-
-/// A node: heap index and its range of tree positions.
-#[derive(Clone, Copy)]
-struct Node {
-    id: usize,
-    start: usize,
-    end: usize,
-}
-
-impl Node {
-    fn is_leaf(&self) -> bool {
-        self.end - self.start <= LEAF
-    }
-
-    fn children(&self) -> (Node, Node) {
-        let mid = self.start + (self.end - self.start) / 2;
-        (
-            Node { id: 2 * self.id + 1, start: self.start, end: mid },
-            Node { id: 2 * self.id + 2, start: mid, end: self.end },
-        )
-    }
-}
-
-/// Orders `ids` as the tree's positions: each node's range split at its median along the widest
-/// axis of its points' box (ties by index).
-fn partition(points: &[Point3<f32>], ids: &mut [u32]) {
-    if ids.len() <= LEAF {
-        return;
-    }
-    let mut bounds = Aabb::EMPTY;
-    for &i in ids.iter() {
-        bounds.grow(points[i as usize].coords.into());
-    }
-    let axis = bounds.widest();
-    let mid = ids.len() / 2;
-    let key = |&i: &u32| points[i as usize][axis];
-    ids.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)).then(a.cmp(b)));
-    let (left, right) = ids.split_at_mut(mid);
-    if left.len() + right.len() > PARALLEL_SPLIT {
-        rayon::join(|| partition(points, left), || partition(points, right));
-    } else {
-        partition(points, left);
-        partition(points, right);
-    }
-}
-
-impl LeafTree {
-    fn new(points: &[Point3<f32>]) -> Self {
-        let mut ids: Vec<u32> = (0..points.len() as u32).collect();
-        partition(points, &mut ids);
-        let axis = |a: usize| ids.par_iter().map(|&i| points[i as usize][a]).collect::<Vec<f32>>();
-        let (xs, ys, zs) = (axis(0), axis(1), axis(2));
-        let mut depth = 0;
-        let mut largest = points.len();
-        while largest > LEAF {
-            largest = largest.div_ceil(2);
-            depth += 1;
-        }
-        let nodes = (1usize << (depth + 1)) - 1;
-        let mut tree = Self { xs, ys, zs, ids, boxes: vec![Aabb::EMPTY; nodes] };
-        if !points.is_empty() {
-            tree.fill_boxes(Node { id: 0, start: 0, end: points.len() });
-        }
-        tree
-    }
-
-    fn fill_boxes(&mut self, node: Node) {
-        self.boxes[node.id] = if node.is_leaf() {
-            let mut b = Aabb::EMPTY;
-            for j in node.start..node.end {
-                b.grow([self.xs[j], self.ys[j], self.zs[j]]);
-            }
-            b
-        } else {
-            let (l, r) = node.children();
-            self.fill_boxes(l);
-            self.fill_boxes(r);
-            self.boxes[l.id].union(&self.boxes[r.id])
-        };
-    }
-
-    /// The leaves, in tree order.
-    fn leaves(&self) -> Vec<Node> {
-        let mut out = Vec::new();
-        let mut stack = vec![Node { id: 0, start: 0, end: self.ids.len() }];
-        while let Some(node) = stack.pop() {
-            if node.is_leaf() {
-                out.push(node);
-            } else {
-                let (l, r) = node.children();
-                stack.push(r);
-                stack.push(l);
-            }
-        }
-        out
-    }
-}
+use crate::error::Result;
 
 /// Scratch space of one worker: a query's candidates (see [`candidate`]), the traversal stack,
 /// one leaf's distances.
@@ -194,16 +48,6 @@ fn neighbor(c: u64) -> Neighbor {
 }
 
 impl LeafTree {
-    /// Squared distances from `q` to the points of `node`, into `dist`.
-    fn distances(&self, q: [f32; 3], node: Node, dist: &mut Vec<f32>) {
-        let r = node.start..node.end;
-        dist.clear();
-        dist.extend(self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r]).map(|((x, y), z)| {
-            let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
-            dx * dx + dy * dy + dz * dz
-        }));
-    }
-
     /// Every point of the subtree `from` within squared distance `reach` of `q`, into `found`.
     fn within(&self, from: Node, q: [f32; 3], reach: f32, scratch: &mut Scratch) {
         let Scratch { found, stack, dist, .. } = scratch;
@@ -294,16 +138,10 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
 /// The tree over `points` and its leaves, after the checks; `None` when `k` is 0 or there are no
 /// points.
 fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<Node>)>> {
-    if points.len() > u32::MAX as usize {
-        return Err(Error::invalid("k-NN", format!("{} points: at most 2^32 - 1", points.len())));
-    }
-    if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
-        return Err(Error::invalid("k-NN", format!("point {i} is not finite")));
-    }
+    let tree = LeafTree::new(points)?;
     if k == 0 || points.is_empty() {
         return Ok(None);
     }
-    let tree = LeafTree::new(points);
     let leaves = tree.leaves();
     Ok(Some((tree, leaves)))
 }

@@ -3,6 +3,9 @@
 //! returned are squared, metres².
 
 mod allknn;
+mod leaftree;
+
+pub(crate) use leaftree::LeafTree;
 
 pub(crate) use allknn::knn_map;
 pub(crate) mod cells;

@@ -1,0 +1,297 @@
+//! A static k-d tree of small leaves over a point set, for the searches awl runs by the million:
+//! all k-NN rows at once (`allknn`) and ICP's bounded nearest-point queries (the growing model in
+//! `awl fuse`'s sequential registration, any target not in a camera frame).
+//!
+//! Median splits on the widest axis, 16-32 points a leaf, the coordinates copied in tree order, one
+//! array per axis (a leaf scan is a plain loop), and the box of every node's points. The tree is
+//! implicit: node `i`'s children are `2i + 1` and `2i + 2`, its range of tree positions is halved
+//! at each level, so no node stores its range. Distances are `dx² + dy² + dz²` in f32, as
+//! [`super::KdIndex`] computes them, and a box's distance is, in floating point too, at most the
+//! distance of any point in it (rounding is monotonic), so pruning by boxes is exact.
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use super::Neighbor;
+
+use crate::error::{Error, Result};
+
+/// Largest leaf: a node with more points is split at its median.
+pub(super) const LEAF: usize = 32;
+/// Below this many points a subtree is ordered on one thread.
+const PARALLEL_SPLIT: usize = 16_384;
+
+/// The points in k-d tree order and the boxes of the implicit tree over them: node `i` covers
+/// tree positions `start..end`, its children are `2i + 1` (`start..mid`) and `2i + 2`
+/// (`mid..end`) with `mid = start + (end - start) / 2`, and it is a leaf when it holds at most
+/// [`LEAF`] points.
+pub(crate) struct LeafTree {
+    pub(super) xs: Vec<f32>,
+    pub(super) ys: Vec<f32>,
+    pub(super) zs: Vec<f32>,
+    /// Index (in the input) of the point at each tree position.
+    pub(super) ids: Vec<u32>,
+    pub(super) boxes: Vec<Aabb>,
+}
+
+/// The box of a node's points.
+#[derive(Clone, Copy)]
+pub(super) struct Aabb {
+    pub(super) lo: [f32; 3],
+    pub(super) hi: [f32; 3],
+}
+
+impl Aabb {
+    const EMPTY: Self = Self { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3] };
+
+    fn grow(&mut self, p: [f32; 3]) {
+        self.lo = [0, 1, 2].map(|a| self.lo[a].min(p[a]));
+        self.hi = [0, 1, 2].map(|a| self.hi[a].max(p[a]));
+    }
+
+    /// The axis along which the box is widest (the first of equals).
+    pub(super) fn widest(&self) -> usize {
+        (0..3).fold(0, |best, a| if self.hi[a] - self.lo[a] > self.hi[best] - self.lo[best] { a } else { best })
+    }
+
+    fn union(&self, o: &Self) -> Self {
+        Self { lo: [0, 1, 2].map(|a| self.lo[a].min(o.lo[a])), hi: [0, 1, 2].map(|a| self.hi[a].max(o.hi[a])) }
+    }
+
+    /// Squared distance from `q` (0 inside).
+    pub(super) fn gap(&self, q: [f32; 3]) -> f32 {
+        let g = [0, 1, 2].map(|a| (self.lo[a] - q[a]).max(q[a] - self.hi[a]).max(0.0));
+        g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+    }
+}
+
+/// A node: heap index and its range of tree positions.
+#[derive(Clone, Copy)]
+pub(super) struct Node {
+    pub(super) id: usize,
+    pub(super) start: usize,
+    pub(super) end: usize,
+}
+
+impl Node {
+    pub(super) fn is_leaf(&self) -> bool {
+        self.end - self.start <= LEAF
+    }
+
+    pub(super) fn children(&self) -> (Node, Node) {
+        let mid = self.start + (self.end - self.start) / 2;
+        (
+            Node { id: 2 * self.id + 1, start: self.start, end: mid },
+            Node { id: 2 * self.id + 2, start: mid, end: self.end },
+        )
+    }
+}
+
+/// Orders `ids` as the tree's positions: each node's range split at its median along the widest
+/// axis of its points' box (ties by index).
+fn partition(points: &[Point3<f32>], ids: &mut [u32]) {
+    if ids.len() <= LEAF {
+        return;
+    }
+    let mut bounds = Aabb::EMPTY;
+    for &i in ids.iter() {
+        bounds.grow(points[i as usize].coords.into());
+    }
+    let axis = bounds.widest();
+    let mid = ids.len() / 2;
+    let key = |&i: &u32| points[i as usize][axis];
+    ids.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)).then(a.cmp(b)));
+    let (left, right) = ids.split_at_mut(mid);
+    if left.len() + right.len() > PARALLEL_SPLIT {
+        rayon::join(|| partition(points, left), || partition(points, right));
+    } else {
+        partition(points, left);
+        partition(points, right);
+    }
+}
+
+impl LeafTree {
+    /// The tree over `points` (built in parallel; the same tree with any number of threads).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a non-finite point or more than `u32::MAX` points.
+    pub(crate) fn new(points: &[Point3<f32>]) -> Result<Self> {
+        if points.len() > u32::MAX as usize {
+            return Err(Error::invalid("k-d tree", format!("{} points: at most 2^32 - 1", points.len())));
+        }
+        if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+            return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
+        }
+        let mut ids: Vec<u32> = (0..points.len() as u32).collect();
+        partition(points, &mut ids);
+        let axis = |a: usize| ids.par_iter().map(|&i| points[i as usize][a]).collect::<Vec<f32>>();
+        let (xs, ys, zs) = (axis(0), axis(1), axis(2));
+        let mut depth = 0;
+        let mut largest = points.len();
+        while largest > LEAF {
+            largest = largest.div_ceil(2);
+            depth += 1;
+        }
+        let nodes = (1usize << (depth + 1)) - 1;
+        let mut tree = Self { xs, ys, zs, ids, boxes: vec![Aabb::EMPTY; nodes] };
+        if !points.is_empty() {
+            tree.fill_boxes(Node { id: 0, start: 0, end: points.len() });
+        }
+        Ok(tree)
+    }
+
+    fn fill_boxes(&mut self, node: Node) {
+        self.boxes[node.id] = if node.is_leaf() {
+            let mut b = Aabb::EMPTY;
+            for j in node.start..node.end {
+                b.grow([self.xs[j], self.ys[j], self.zs[j]]);
+            }
+            b
+        } else {
+            let (l, r) = node.children();
+            self.fill_boxes(l);
+            self.fill_boxes(r);
+            self.boxes[l.id].union(&self.boxes[r.id])
+        };
+    }
+
+    /// The leaves, in tree order.
+    pub(super) fn leaves(&self) -> Vec<Node> {
+        let mut out = Vec::new();
+        let mut stack = vec![Node { id: 0, start: 0, end: self.ids.len() }];
+        while let Some(node) = stack.pop() {
+            if node.is_leaf() {
+                out.push(node);
+            } else {
+                let (l, r) = node.children();
+                stack.push(r);
+                stack.push(l);
+            }
+        }
+        out
+    }
+
+    /// Squared distances from `q` to the points of `node`, into `dist`.
+    pub(super) fn distances(&self, q: [f32; 3], node: Node, dist: &mut Vec<f32>) {
+        let r = node.start..node.end;
+        dist.clear();
+        dist.extend(self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r]).map(|((x, y), z)| {
+            let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
+            dx * dx + dy * dy + dz * dz
+        }));
+    }
+
+    /// The nearest point within `radius_m` (inclusive) of `q`, the lowest index among equally
+    /// near ones; `None` when there is none. Depth first: down the split planes to the query's
+    /// leaf, each farther child kept with its distance across the plane (a lower bound of its
+    /// box's), and a kept child searched only while that bound and then its box are within the best
+    /// distance so far. One comparison a level on the way down: ICP's queries, bounded by the
+    /// previous correspondence, mostly end in one or two leaves.
+    pub(crate) fn nearest_within(&self, q: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
+        let q = [q.x, q.y, q.z];
+        let reach = radius_m * radius_m;
+        if self.ids.is_empty() || reach.is_nan() {
+            return None;
+        }
+        // the best so far as (distance bits, index): see below; a non-negative f32's bits order as
+        // the float does
+        let mut best = (u64::from(reach.to_bits()) << 32) | u64::from(u32::MAX);
+        let bound = |best: u64| f32::from_bits((best >> 32) as u32);
+        // the pending farther children: at most one per level, and a tree over at most 2^32
+        // points has fewer than 32 levels of splits (leaves hold 16 or more); (gap, id, start, end)
+        let mut stack = [(0.0f32, 0u32, 0u32, 0u32); 32];
+        let node_of = |(_, id, start, end): (f32, u32, u32, u32)| Node {
+            id: id as usize,
+            start: start as usize,
+            end: end as usize,
+        };
+        let entry = |gap: f32, n: Node| (gap, n.id as u32, n.start as u32, n.end as u32);
+        stack[0] = entry(0.0, Node { id: 0, start: 0, end: self.ids.len() });
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            if stack[top].0 > bound(best) {
+                continue;
+            }
+            let mut node = node_of(stack[top]);
+            // its box, then down to a leaf by the split planes (the axis the partition split on),
+            // the farther child of each step left on the stack with its distance across the split
+            if self.boxes[node.id].gap(q) > bound(best) {
+                continue;
+            }
+            while !node.is_leaf() {
+                let (l, r) = node.children();
+                let axis = self.boxes[node.id].widest();
+                let (l_hi, r_lo) = (self.boxes[l.id].hi[axis], self.boxes[r.id].lo[axis]);
+                let (near, far, across) = if q[axis] - l_hi <= r_lo - q[axis] {
+                    (l, r, (r_lo - q[axis]).max(0.0))
+                } else {
+                    (r, l, (q[axis] - l_hi).max(0.0))
+                };
+                if across * across <= bound(best) {
+                    stack[top] = entry(across * across, far);
+                    top += 1;
+                }
+                node = near;
+            }
+            // (distance bits, index) as one integer: the smallest is the nearest, then the lowest
+            // index (no branch)
+            let r = node.start..node.end;
+            best = self.xs[r.clone()]
+                .iter()
+                .zip(&self.ys[r.clone()])
+                .zip(&self.zs[r.clone()])
+                .zip(&self.ids[r])
+                .map(|(((x, y), z), &i)| {
+                    let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
+                    (u64::from((dx * dx + dy * dy + dz * dz).to_bits()) << 32) | u64::from(i)
+                })
+                .fold(best, u64::min);
+        }
+        let (dist_sq, index) = (f32::from_bits((best >> 32) as u32), best as u32);
+        (index != u32::MAX).then_some(Neighbor { index, dist_sq })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spatial::brute;
+    use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn nearest_within_equals_brute_force_ties_by_index() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let random: Vec<Point3<f32>> = (0..5000)
+            .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), 0.1 * rng.random::<f32>()))
+            .collect();
+        // a lattice (many equal distances) with duplicated points
+        let mut lattice: Vec<Point3<f32>> = (0..3000)
+            .map(|i| Point3::new((i % 30) as f32 * 0.01, (i / 30 % 10) as f32 * 0.01, (i / 300) as f32 * 0.01))
+            .collect();
+        lattice.extend_from_within(..500);
+        for points in [random, lattice, vec![Point3::new(0.5, 0.5, 0.05)]] {
+            let tree = LeafTree::new(&points).expect("tree");
+            for _ in 0..500 {
+                let q = Point3::new(
+                    rng.random::<f32>() * 1.2 - 0.1,
+                    rng.random::<f32>() * 1.2 - 0.1,
+                    rng.random::<f32>() * 0.2,
+                );
+                // on lattice points and half-way between them: exact ties
+                let q = if rng.random::<f32>() < 0.3 {
+                    Point3::from((q.coords * 200.0).map(f32::round) / 200.0)
+                } else {
+                    q
+                };
+                for radius in [0.0, 0.004, 0.01, 0.05, 3.0] {
+                    let want = brute::nearest(&points, &q).filter(|n| n.dist_sq <= radius * radius);
+                    assert_eq!(tree.nearest_within(&q, radius), want, "{q:?} within {radius}");
+                }
+            }
+        }
+        let empty = LeafTree::new(&[]).expect("empty");
+        assert_eq!(empty.nearest_within(&Point3::origin(), 1.0), None);
+        assert!(LeafTree::new(&[Point3::new(0.0, f32::INFINITY, 0.0)]).is_err());
+    }
+}
