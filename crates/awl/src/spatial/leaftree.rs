@@ -87,26 +87,32 @@ impl Node {
     }
 }
 
-/// Orders `ids` as the tree's positions: each node's range split at its median along the widest
-/// axis of its points' box (ties by index).
-fn partition(points: &[Point3<f32>], ids: &mut [u32]) {
-    if ids.len() <= LEAF {
+/// A point and its index, moved as one while the tree is ordered.
+#[derive(Clone, Copy)]
+struct Entry {
+    p: [f32; 3],
+    id: u32,
+}
+
+/// Orders `entries` as the tree's positions: each node's range split at its median along the
+/// widest axis of its points' box (ties by index).
+fn partition(entries: &mut [Entry]) {
+    if entries.len() <= LEAF {
         return;
     }
     let mut bounds = Aabb::EMPTY;
-    for &i in ids.iter() {
-        bounds.grow(points[i as usize].coords.into());
+    for e in entries.iter() {
+        bounds.grow(e.p);
     }
     let axis = bounds.widest();
-    let mid = ids.len() / 2;
-    let key = |&i: &u32| points[i as usize][axis];
-    ids.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)).then(a.cmp(b)));
-    let (left, right) = ids.split_at_mut(mid);
+    let mid = entries.len() / 2;
+    entries.select_nth_unstable_by(mid, |a, b| a.p[axis].total_cmp(&b.p[axis]).then(a.id.cmp(&b.id)));
+    let (left, right) = entries.split_at_mut(mid);
     if left.len() + right.len() > PARALLEL_SPLIT {
-        rayon::join(|| partition(points, left), || partition(points, right));
+        rayon::join(|| partition(left), || partition(right));
     } else {
-        partition(points, left);
-        partition(points, right);
+        partition(left);
+        partition(right);
     }
 }
 
@@ -122,10 +128,12 @@ impl LeafTree {
         if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
             return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
         }
-        let mut ids: Vec<u32> = (0..points.len() as u32).collect();
-        partition(points, &mut ids);
-        let axis = |a: usize| ids.par_iter().map(|&i| points[i as usize][a]).collect::<Vec<f32>>();
+        let mut entries: Vec<Entry> =
+            points.par_iter().enumerate().map(|(i, p)| Entry { p: [p.x, p.y, p.z], id: i as u32 }).collect();
+        partition(&mut entries);
+        let axis = |a: usize| entries.par_iter().map(|e| e.p[a]).collect::<Vec<f32>>();
         let (xs, ys, zs) = (axis(0), axis(1), axis(2));
+        let ids = entries.par_iter().map(|e| e.id).collect();
         let mut depth = 0;
         let mut largest = points.len();
         while largest > LEAF {
