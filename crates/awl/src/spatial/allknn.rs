@@ -20,7 +20,7 @@ use nalgebra::Point3;
 use rayon::prelude::*;
 
 use super::Neighbor;
-use super::leaftree::{LeafTree, Node};
+use super::leaftree::{LeafTree, Node, candidate, neighbor};
 
 use crate::error::Result;
 
@@ -35,16 +35,6 @@ struct Scratch {
     path: Vec<(Node, usize)>,
     /// The leaf's queries answered so far and their `k`-th distances (m).
     done: Vec<([f32; 3], f32)>,
-}
-
-/// A candidate as one integer that orders as (squared distance, index): a non-negative finite
-/// f32's bits order as the float does.
-fn candidate(dist_sq: f32, index: u32) -> u64 {
-    (u64::from(dist_sq.to_bits()) << 32) | u64::from(index)
-}
-
-fn neighbor(c: u64) -> Neighbor {
-    Neighbor { index: c as u32, dist_sq: f32::from_bits((c >> 32) as u32) }
 }
 
 impl LeafTree {

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use super::Neighbor;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// Largest leaf: a node with more points is split at its median.
 pub(super) const LEAF: usize = 32;
@@ -87,6 +87,17 @@ impl Node {
     }
 }
 
+/// A candidate point as one integer that orders as (squared distance, index): a non-negative
+/// f32's bits order as the float does.
+pub(super) fn candidate(dist_sq: f32, index: u32) -> u64 {
+    (u64::from(dist_sq.to_bits()) << 32) | u64::from(index)
+}
+
+/// The neighbour a [`candidate`] stands for.
+pub(super) fn neighbor(c: u64) -> Neighbor {
+    Neighbor { index: c as u32, dist_sq: f32::from_bits((c >> 32) as u32) }
+}
+
 /// A point and its index, moved as one while the tree is ordered.
 #[derive(Clone, Copy)]
 struct Entry {
@@ -122,12 +133,7 @@ impl LeafTree {
     /// # Errors
     /// [`Error::Invalid`] for a non-finite point or more than `u32::MAX` points.
     pub(crate) fn new(points: &[Point3<f32>]) -> Result<Self> {
-        if points.len() > u32::MAX as usize {
-            return Err(Error::invalid("k-d tree", format!("{} points: at most 2^32 - 1", points.len())));
-        }
-        if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
-            return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
-        }
+        super::check_points(points)?;
         let mut entries: Vec<Entry> =
             points.par_iter().enumerate().map(|(i, p)| Entry { p: [p.x, p.y, p.z], id: i as u32 }).collect();
         partition(&mut entries);
@@ -201,10 +207,9 @@ impl LeafTree {
         if self.ids.is_empty() || reach.is_nan() {
             return None;
         }
-        // the best so far as (distance bits, index): see below; a non-negative f32's bits order as
-        // the float does
-        let mut best = (u64::from(reach.to_bits()) << 32) | u64::from(u32::MAX);
-        let bound = |best: u64| f32::from_bits((best >> 32) as u32);
+        // the best so far as a candidate: the smallest is the nearest, then the lowest index
+        let mut best = candidate(reach, u32::MAX);
+        let bound = |best: u64| neighbor(best).dist_sq;
         // the pending farther children: at most one per level, and a tree over at most 2^32
         // points has fewer than 32 levels of splits (leaves hold 16 or more); (gap, id, start, end)
         let mut stack = [(0.0f32, 0u32, 0u32, 0u32); 32];
@@ -242,8 +247,7 @@ impl LeafTree {
                 }
                 node = near;
             }
-            // (distance bits, index) as one integer: the smallest is the nearest, then the lowest
-            // index (no branch)
+            // the leaf's points as candidates, the smallest kept (no branch)
             let r = node.start..node.end;
             best = self.xs[r.clone()]
                 .iter()
@@ -252,12 +256,12 @@ impl LeafTree {
                 .zip(&self.ids[r])
                 .map(|(((x, y), z), &i)| {
                     let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
-                    (u64::from((dx * dx + dy * dy + dz * dz).to_bits()) << 32) | u64::from(i)
+                    candidate(dx * dx + dy * dy + dz * dz, i)
                 })
                 .fold(best, u64::min);
         }
-        let (dist_sq, index) = (f32::from_bits((best >> 32) as u32), best as u32);
-        (index != u32::MAX).then_some(Neighbor { index, dist_sq })
+        let best = neighbor(best);
+        (best.index != u32::MAX).then_some(best)
     }
 }
 

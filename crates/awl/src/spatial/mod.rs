@@ -35,6 +35,18 @@ pub struct KdIndex {
     len: usize,
 }
 
+/// What a tree over `points` needs: every point finite, at most `u32::MAX` of them (indices are
+/// u32).
+fn check_points(points: &[Point3<f32>]) -> Result<()> {
+    if points.len() > u32::MAX as usize {
+        return Err(Error::invalid("k-d tree", format!("{} points: at most 2^32 - 1", points.len())));
+    }
+    if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+        return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
+    }
+    Ok(())
+}
+
 fn to_array(p: &Point3<f32>) -> [f32; 3] {
     [p.x, p.y, p.z]
 }
@@ -45,9 +57,7 @@ impl KdIndex {
     /// # Errors
     /// [`Error::Invalid`] when the slice has more than `u32::MAX` points or a non-finite point.
     pub fn new(points: &[Point3<f32>]) -> Result<Self> {
-        if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
-            return Err(Error::invalid("k-d tree", format!("point {i} is not finite")));
-        }
+        check_points(points)?;
         // the points as they are (`Point3<f32>` is three packed f32): no copy
         let coords: &[[f32; 3]] = bytemuck::cast_slice(points);
         let tree = ImmutableKdTree::new_from_slice(coords)
