@@ -1,10 +1,10 @@
 //! The `k` nearest neighbours of every point of a set at once (outlier removal, normals).
 //!
 //! The points are ordered into a [`LeafTree`] (median splits on the widest axis, 16-32 points a
-//! leaf, one coordinate array per axis in tree order) and answered leaf by leaf, each query as a search within a reach that surely holds
-//! its `k` nearest points: the previous query's `k`-th distance plus the step between them (the
-//! nearest query of the leaf already answered), or for a leaf's first query the `k`-th distance
-//! among its seed (the smallest subtree about it with `2k` points). Neighbouring queries make the
+//! leaf, one coordinate array per axis in tree order) and answered leaf by leaf, each query as a
+//! search within a reach that surely holds its `k` nearest points: the least, over the leaf's
+//! queries already answered, of their `k`-th distance plus the step to them, or for a leaf's first
+//! query the `k`-th distance among its seed (the smallest subtree about it with `2k` points). Neighbouring queries make the
 //! reach tight (about 2x the `k` points are collected), the search starts below every ancestor
 //! whose other side is out of reach, and candidates are kept as one integer (distance bits, index)
 //! that sorts without a comparator.
@@ -91,15 +91,12 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
     };
     for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
         let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
-        // the nearest query done (its k-th distance plus the step bounds this one's)
-        let nearest = done
+        // each query done bounds this one's k-th distance by its own plus the step: the least
+        let bound = done
             .iter()
-            .map(|(p, d)| ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2), *d))
-            .min_by(|a, b| a.0.total_cmp(&b.0));
-        let reach = match nearest {
-            Some((step_sq, d)) => widen(step_sq.sqrt() + d),
-            None => seed_reach(q, &mut scratch.dist),
-        };
+            .map(|(p, d)| ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt() + d)
+            .fold(f32::INFINITY, f32::min);
+        let reach = if done.is_empty() { seed_reach(q, &mut scratch.dist) } else { widen(bound) };
         // the highest ancestor with a child off the path to the leaf whose box is within reach
         // (with a margin against rounding): every point outside it lies in such a box
         let from = |r: f32| {
