@@ -4,10 +4,10 @@
 //! leaf, one coordinate array per axis in tree order) and answered leaf by leaf, each query as a
 //! search within a reach that surely holds its `k` nearest points: the least, over the leaf's
 //! queries already answered, of their `k`-th distance plus the step to them, or for a leaf's first
-//! query the `k`-th distance among its seed (the smallest subtree about it with `2k` points). Neighbouring queries make the
-//! reach tight (about 2x the `k` points are collected), the search starts below every ancestor
-//! whose other side is out of reach, and candidates are kept as one integer (distance bits, index)
-//! that sorts without a comparator.
+//! query the `k`-th distance among its seed (the smallest subtree about it with `2k` points).
+//! Neighbouring queries make the reach tight (about 2x the `k` points are collected), the search
+//! starts below every ancestor whose other side is out of reach, and candidates are kept as one
+//! integer (distance bits, index) that sorts without a comparator.
 //!
 //! Each row holds the `k` points smallest by (squared distance, index), nearest first: the
 //! distances [`super::KdIndex::knn`] gives (computed the same way, `dx² + dy² + dz²` in f32), and
