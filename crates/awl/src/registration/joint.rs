@@ -103,8 +103,13 @@ fn run_level(
     params: &IcpParams,
 ) -> JointLevelStats {
     let n = views.len();
+    // Ordered pairs grouped by target view (a thread's consecutive pairs search the same view's
+    // grid, warm in cache); their sums are added in source-view order (`by_source`).
     let pairs: Vec<(usize, usize)> =
-        (0..n).flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j))).collect();
+        (0..n).flat_map(|j| (0..n).filter(move |&i| i != j).map(move |i| (i, j))).collect();
+    let by_source: Vec<usize> = (0..n)
+        .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| j * (n - 1) + i - usize::from(i > j)))
+        .collect();
     // Common centre and scale of the rotation unknowns: the views' cameras.
     let centre = poses.iter().fold(Vector3::zeros(), |a, p| a + p.translation.vector) / n as f64;
     let length =
@@ -132,8 +137,8 @@ fn run_level(
         let mut h = DMatrix::<f64>::zeros(dim, dim);
         let mut g = DVector::<f64>::zeros(dim);
         let (mut inliers, mut residual_sq, mut used) = (0, 0.0, 0);
-        for (&(i, j), s) in pairs.iter().zip(&sums) {
-            let Some(s) = s else { continue };
+        for &k in &by_source {
+            let ((i, j), Some(s)) = (pairs[k], &sums[k]) else { continue };
             used += 1;
             inliers += s.inliers;
             residual_sq += s.residual_sq;
