@@ -34,7 +34,36 @@ enum Command {
     Simulate(cmd::simulate::SimulateArgs),
 }
 
+/// The x86-64 features this build was compiled for (`.cargo/config.toml`) that the CPU lacks:
+/// running on without them would end in an illegal instruction.
+fn missing_cpu_features() -> Vec<&'static str> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut missing = Vec::new();
+        macro_rules! need {
+            ($($f:tt),*) => {$(
+                if cfg!(target_feature = $f) && !std::arch::is_x86_feature_detected!($f) {
+                    missing.push($f);
+                }
+            )*};
+        }
+        need!("avx", "avx2", "fma", "bmi1", "bmi2", "lzcnt", "movbe", "f16c", "sse4.2", "popcnt");
+        missing
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    Vec::new()
+}
+
 fn main() -> std::process::ExitCode {
+    let missing = missing_cpu_features();
+    if !missing.is_empty() {
+        eprintln!(
+            "error: this awl was built for x86-64-v3 CPUs and this CPU lacks {}; rebuild it for any \
+             x86-64 with: RUSTFLAGS=\"-C target-cpu=x86-64\" cargo build --release -p awl-cli",
+            missing.join(", ")
+        );
+        return std::process::ExitCode::from(2);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Calibrate(args) => cmd::calibrate::run(&args),
