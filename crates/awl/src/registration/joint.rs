@@ -104,7 +104,8 @@ fn run_level(
 ) -> JointLevelStats {
     let n = views.len();
     // Ordered pairs grouped by target view (a thread's consecutive pairs search the same view's
-    // grid, warm in cache); their sums are added in source-view order (`by_source`).
+    // grid, warm in cache); their sums are added in source-view order: `by_source` lists the
+    // position of `(i, j)` in `pairs`, `j (n - 1)` plus `i`'s rank among the views other than `j`.
     let pairs: Vec<(usize, usize)> =
         (0..n).flat_map(|j| (0..n).filter(move |&i| i != j).map(move |i| (i, j))).collect();
     let by_source: Vec<usize> = (0..n)
