@@ -286,7 +286,7 @@ fn exp_neg(x: f64) -> f64 {
 }
 
 /// Two unit vectors completing the unit `n` to a right-handed orthonormal frame (u, v, n).
-fn tangent_frame(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+pub(crate) fn tangent_frame(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let u = if n.x.abs() > n.y.abs() {
         Vector3::new(-n.z, 0.0, n.x) / (n.x * n.x + n.z * n.z).sqrt()
     } else {

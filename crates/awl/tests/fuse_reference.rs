@@ -211,10 +211,11 @@ fn shell_tag_on_the_model_and_snapped_points() {
         a.2
     );
     assert!(dist_mm.len() >= 200, "{} points", dist_mm.len());
-    // measured: median 0.52 mm / 1.68 deg, p95 1.32 mm / 6.6 deg (the model's own error vs the CAD,
-    // and groove walls and rims where the normal turns fast)
-    assert!(d.0 <= 1.0 && a.0 <= 2.0, "median {:.3} mm, {:.2} deg", d.0, a.0);
-    assert!(d.1 <= 1.5 && a.1 <= 8.0, "p95 {:.3} mm, {:.2} deg", d.1, a.1);
+    // measured: median 0.49 mm / 0.92 deg, p95 1.28 mm / 4.06 deg, max 1.66 mm / 27.9 deg (the
+    // model's own error vs the CAD's 4 mm facets, and rims where the normal turns fast; the 15 mm
+    // plane in folds instead of the fold's patch: median 0.97 deg, p95 6.56 deg)
+    assert!(d.0 <= 1.0 && a.0 <= 1.5, "median {:.3} mm, {:.2} deg", d.0, a.0);
+    assert!(d.1 <= 1.5 && a.1 <= 6.0, "p95 {:.3} mm, {:.2} deg", d.1, a.1);
     // measured 2.64 mm / 0.19 deg: the tag is printed on a curved side, its corners lie 1.4-1.9 mm behind
     // the tag plane (see tests/tags_sim.rs), which biases the detected origin
     check_fused_tag(f, 3.0, 1.0);
@@ -286,8 +287,10 @@ fn box_pierce_from_the_tilted_shot() {
 #[test]
 fn shell_pierce_from_the_tilted_shot() {
     let errors = pierce_shot(reference_shell(), "shell_seed1_shot_tilt30", false);
+    // the groove: measured 1.92 mm / 0.12 deg (true hand-eye), 2.55 mm / 0.49 deg (recorded; the
+    // 15 mm plane in the groove instead of the fold's patch: 1.01 / 1.35 deg)
     for (name, e) in &errors {
-        assert!(e[2] <= 3.0 && e[3] <= 2.0, "{name} with the true hand-eye: {e:?}");
-        assert!(e[0] <= 5.0 && e[1] <= 2.0, "{name} with the recorded hand-eye: {e:?}");
+        assert!(e[2] <= 3.0 && e[3] <= 1.0, "{name} with the true hand-eye: {e:?}");
+        assert!(e[0] <= 5.0 && e[1] <= 1.0, "{name} with the recorded hand-eye: {e:?}");
     }
 }

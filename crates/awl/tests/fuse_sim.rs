@@ -141,12 +141,13 @@ static FLANK_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();
 /// and depth. Issue 5: mean distance at most 2 mm, max at most 4 mm, tool axis within 1 degree of
 /// the true normal (the reference system: about 8 mm). CI runs 5 trials per table to keep the suite
 /// short; `awl trial --trials 10` prints the full tables.
-fn trials(scene: SceneKind, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f64) {
-    trials_at(scene, None, pose, n, mean_mm, axis_deg);
+fn trials(scene: SceneKind, pose: ShotPose, n: usize) {
+    trials_at(scene, None, pose, n);
 }
 
 /// [`trials`] on the truth target `target` (the first when `None`).
-fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize, mean_mm: f64, axis_deg: f64) {
+fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
+    let (mean_mm, max_mm, axis_deg) = (2.0, 4.0, 1.0f64);
     let f = seed1(scene);
     let cell = match (scene, target) {
         (SceneKind::Box, _) => &BOX_WORKPIECE,
@@ -186,7 +187,7 @@ fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize, m
     let s = TrialSummary::of(&rows);
     let name = format!("{scene:?} {}", pose.name());
     assert!(s.mean_m <= mean_mm * 1e-3, "{name}: mean {:.2} mm > {mean_mm} mm", s.mean_m * 1e3);
-    assert!(s.max_m <= 0.004, "{name}: max {:.2} mm > 4 mm", s.max_m * 1e3);
+    assert!(s.max_m <= max_mm * 1e-3, "{name}: max {:.2} mm > {max_mm} mm", s.max_m * 1e3);
     assert!(
         s.max_axis_error_rad <= axis_deg.to_radians(),
         "{name}: axis {:.2} deg > {axis_deg} deg",
@@ -226,38 +227,38 @@ fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize, m
 #[test]
 fn trials_box_flat() {
     // measured mean 1.47 mm, max 2.28 mm, axis 0.26 deg
-    trials(SceneKind::Box, ShotPose::Flat, 5, 2.0, 1.0);
+    trials(SceneKind::Box, ShotPose::Flat, 5);
 }
 
 #[test]
 fn trials_box_tilted_30() {
     // measured mean 1.58 mm, max 2.32 mm, axis 0.16 deg
-    trials(SceneKind::Box, ShotPose::Tilt30, 5, 2.0, 1.0);
+    trials(SceneKind::Box, ShotPose::Tilt30, 5);
 }
 
 #[test]
 fn trials_shell_flat() {
-    // The groove's bottom, where the surface turns 4 deg per mm. measured mean 1.21 mm, max 1.93 mm:
-    // issue 5's distance bounds. NOT its axis bound: 1.50 deg at 10 trials (the model's normal
-    // there, 1.38 deg: a 0.25 mm shift across the groove is 1 deg); asserted at the measured level
-    trials(SceneKind::Shell, ShotPose::Flat, 5, 2.0, 2.0);
+    // The groove's bottom, where the surface turns 4 deg per mm: issue 5's bounds, axis included
+    // (10 trials: mean 1.26 mm, max 2.10 mm, axis mean 0.32 deg, max 0.40 deg; the model's normal
+    // there 0.27 deg off, from 1.52 deg with the 15 mm plane before the fold's patch)
+    trials(SceneKind::Shell, ShotPose::Flat, 5);
 }
 
 #[test]
 fn trials_shell_tilted_30() {
-    // the groove: measured mean 1.51 mm, max 3.36 mm; NOT YET the axis bound: 1.62 deg at 10 trials
-    trials(SceneKind::Shell, ShotPose::Tilt30, 5, 2.0, 2.0);
+    // the groove: 10 trials: mean 1.22 mm, max 2.05 mm, axis mean 0.35 deg, max 0.53 deg
+    trials(SceneKind::Shell, ShotPose::Tilt30, 5);
 }
 
 #[test]
 fn trials_shell_flank_flat() {
     // a gently curved point (0.35 deg per mm): issue 5's bounds, axis included (10 trials: mean
     // 1.70 mm, max 2.85 mm, axis max 0.87 deg)
-    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Flat, 5, 2.0, 1.0);
+    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Flat, 5);
 }
 
 #[test]
 fn trials_shell_flank_tilted_30() {
     // 10 trials: mean 1.56 mm, max 3.13 mm, axis max 0.86 deg
-    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Tilt30, 5, 2.0, 1.0);
+    trials_at(SceneKind::Shell, Some("flank"), ShotPose::Tilt30, 5);
 }

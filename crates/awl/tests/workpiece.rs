@@ -258,7 +258,7 @@ fn height_normal(h: &impl Fn(f64, f64) -> f64, x: f64, y: f64) -> Vector3<f64> {
 }
 
 #[test]
-fn snapped_normals_average_noise_on_gentle_curves_and_stay_local_on_sharp_ones() {
+fn snapped_normals_average_noise_on_gentle_curves_and_along_folds() {
     // plane-only normals (no wide quadric) for comparison
     let plane_only = TargetParams { gentle_normal_radius_m: 0.0, ..TargetParams::default() };
     let angle = |cloud: &PointCloud, h: &dyn Fn(f64, f64) -> f64, x: f64, params: &TargetParams| {
@@ -281,16 +281,15 @@ fn snapped_normals_average_noise_on_gentle_curves_and_stay_local_on_sharp_ones()
     println!("sphere: wide quadric {wide:.3} deg, plane {plane:.3} deg (mean of 20)");
     // measured 0.119 / 0.423 deg
     assert!(wide < 0.15 && wide < 0.4 * plane, "sphere: {wide:.3} deg (plane {plane:.3})");
-    // a Gaussian groove 20 mm deep, sigma 17 mm (the shell's: 4 deg per mm at the bottom), 0.6 mm noise
+    // a Gaussian groove 20 mm deep, sigma 17 mm (the shell's: 4 deg per mm at the bottom), 0.6 mm
+    // noise: the normal is the fold's (a long narrow patch along the groove), not the 15 mm plane's
+    // (measured 0.107 / 1.552 deg at the bottom, 0.549 / 4.175 deg on the wall)
     let groove = |x: f64, _y: f64| -0.02 * (-0.5 * (x / 0.017f64).powi(2)).exp();
     let cloud = noisy_surface(groove, 0.08, 0.0006, 8);
-    for x in [0.0, 0.01] {
-        let (wide, plane) =
+    for (x, max_deg) in [(0.0, 0.3), (0.01, 1.0)] {
+        let (fold, plane) =
             (angle(&cloud, &groove, x, &TargetParams::default()), angle(&cloud, &groove, x, &plane_only));
-        println!("groove at x = {x}: default {wide:.3} deg, plane {plane:.3} deg");
-        // a radius of curvature of 14.5 mm at the bottom: the normal stays the 15 mm plane's
-        // (measured 1.552 deg at the bottom, 4.175 on the wall; a growing quadric: 0.27 and 3.69 deg
-        // here, but 1.1 deg worse at the other simulator's groove, tests/fuse_reference.rs)
-        assert!((wide - plane).abs() < 1e-9, "groove at x = {x}: {wide:.3} deg (plane {plane:.3})");
+        println!("groove at x = {x}: fold {fold:.3} deg, plane {plane:.3} deg");
+        assert!(fold <= max_deg && fold < plane, "groove at x = {x}: {fold:.3} deg (plane {plane:.3})");
     }
 }
