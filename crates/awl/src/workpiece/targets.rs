@@ -337,9 +337,9 @@ impl<'a> SurfaceModel<'a> {
     }
 
     /// A weighted quadric (or cubic) height field over the points of `near` in the patch at `q`
-    /// with Gaussian sigmas `sigmas` = (across the fold, i.e. along `wide.sharpest`; along it), cut
-    /// at 2 sigmas and within one across-sigma of the tangent plane; fitted twice, the second time
-    /// in the first one's frame: its normal at `q`.
+    /// with Gaussian sigmas `s1` across the fold (along `wide.sharpest`) and `s2` along it, cut at
+    /// 2 sigmas and within `s1` of the tangent plane; fitted twice, the second time in the first
+    /// one's frame: its normal at `q`.
     fn fold_fit(
         &self,
         q: &Point3<f64>,
