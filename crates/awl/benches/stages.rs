@@ -225,7 +225,7 @@ mod scan {
 
     /// View 1 registered against view 0 (world frame) from its recorded pose, with the pipeline's
     /// default per-view preparation (2 mm voxel, SOR, normals toward the camera) and registration
-    /// parameters (four levels, 15 mm to 2 mm).
+    /// parameters (three levels, 15 mm to 3 mm).
     #[divan::bench(args = THREADS, sample_count = 5)]
     fn icp_views(b: Bencher, threads: usize) {
         let config = FuseConfig::default();
