@@ -94,11 +94,7 @@ impl Default for RegistrationConfig {
             |voxel_m, max_correspondence_m, max_iterations| IcpLevel { voxel_m, max_correspondence_m, max_iterations };
         Self {
             icp: IcpParams {
-                levels: vec![
-                    level(0.015, 0.10, 30),
-                    level(0.006, 0.03, 30),
-                    level(0.003, 0.01, 30),
-                ],
+                levels: vec![level(0.015, 0.10, 30), level(0.006, 0.03, 30), level(0.003, 0.01, 30)],
                 convergence_translation_m: 1e-4,
                 convergence_rotation_rad: 1e-4,
                 ..IcpParams::default()
