@@ -62,8 +62,9 @@ pub struct RegistrationConfig {
     /// 10 cm gate (SLAM-level seed errors of 5 cm / 5 deg) down to 3 mm voxels and a 10 mm gate;
     /// a level converges when a step moves less than 0.1 mm and 1e-4 rad (the noise floor of the
     /// steps on realistic depth data). The 2 mm level is left to the joint refinement: on 8
-    /// simulated scans a fourth sequential level (2 mm / 5 mm) changed the model's RMSE by -0.22 to
-    /// +0.15 mm (mean 0.709 -> 0.706 mm) for 6-22 % of the registration's time (BENCHMARKS.md 37).
+    /// simulated scans, dropping a fourth sequential level (2 mm / 5 mm) changed the model's RMSE
+    /// by -0.22 to +0.15 mm (mean 0.706 -> 0.709 mm) and saved 6-22 % of the registration's time
+    /// (BENCHMARKS.md 37).
     pub icp: IcpParams,
     /// Acceptance rule.
     pub accept: AcceptanceRule,
