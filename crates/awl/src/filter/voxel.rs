@@ -30,6 +30,10 @@ use crate::error::{Error, Result};
 /// Largest |voxel coordinate| accepted; beyond it a voxel size is absurdly small for the cloud.
 const MAX_KEY: f64 = 4_611_686_018_427_387_904.0; // 2^62
 
+/// Relative distance to an integer within which `x * (1 / size)` may floor differently from
+/// `x / size` (their relative difference is at most 3 * 2^-53 = 3.3e-16).
+const KEY_SLACK: f64 = 1e-15;
+
 /// Summed normals shorter than this fraction of their count are treated as cancelled out.
 const NORMAL_CANCEL_RATIO: f64 = 1e-6;
 
@@ -246,6 +250,8 @@ impl VoxelAccumulator {
 /// axis's offset `key - lo` needs.
 struct Grid {
     size: f64,
+    /// `1 / size`: see [`Grid::key`].
+    inv: f64,
     lo: [i64; 3],
     bits: [u32; 3],
 }
@@ -283,12 +289,33 @@ impl Grid {
             // floor is monotonic, so these are the extreme keys; within ±2^62 the span fits in u64.
             bits[a] = 64 - floor(bounds.max[a])?.abs_diff(lo[a]).leading_zeros();
         }
-        Ok(Self { size, lo, bits })
+        Ok(Self { size, inv: 1.0 / size, lo, bits })
     }
 
+    /// `floor(x / size)` per axis (in range: every coordinate lies within the bounds checked in
+    /// `new`), computed as `floor(x * (1 / size))`: that product is within 3.3e-16 (relative) of
+    /// `x / size` (three roundings of at most 2^-53 each), so the two floors agree unless the
+    /// product lies that close to an integer, and only then is the division done. Same keys, bit
+    /// for bit, without a division per coordinate.
+    #[inline]
     fn key(&self, p: &Point3<f32>) -> [i64; 3] {
-        // In range: every coordinate lies within the bounds checked in `new`.
-        [0, 1, 2].map(|a| floor_i64(f64::from(p[a]) / self.size))
+        let mut clear = true;
+        let keys = [p.x, p.y, p.z].map(|x| {
+            let q = f64::from(x) * self.inv;
+            let f = q.floor();
+            let (frac, slack) = (q - f, q.abs() * KEY_SLACK);
+            clear &= frac > slack && frac < 1.0 - slack;
+            f as i64
+        });
+        if clear { keys } else { self.key_by_division(p) }
+    }
+
+    /// [`Grid::key`] by division: for a coordinate next to a voxel boundary (kept out of line, so
+    /// that the common case has no division at all).
+    #[cold]
+    #[inline(never)]
+    fn key_by_division(&self, p: &Point3<f32>) -> [i64; 3] {
+        [p.x, p.y, p.z].map(|x| floor_i64(f64::from(x) / self.size))
     }
 
     /// True when every point has its own voxel and the points are in key order: the cloud is its
@@ -364,26 +391,40 @@ impl Grid {
     }
 }
 
-/// Stable LSD radix sort of `values` by their bits `lo_bit..hi_bit` (digits of at most 11 bits).
-/// The histograms of every digit are counted in one pass over the input, then each digit is one
-/// scatter pass.
+/// Values a chunk of a parallel radix pass gets at least; fewer values sort in one chunk.
+const RADIX_MIN_CHUNK: usize = 1 << 16;
+
+/// Stable LSD radix sort of `values` by their bits `lo_bit..hi_bit` (digits of at most 13 bits).
+/// In one chunk (one thread, or few values) the histograms of every digit are counted in one pass
+/// over the input, then each digit is one scatter pass. In several chunks each pass counts its
+/// digit per chunk, then every chunk scatters into its own slices of the output, in parallel. The
+/// result is the one stable order either way.
 fn radix_sort(values: &mut Vec<u64>, lo_bit: u32, hi_bit: u32) {
     let total = hi_bit.saturating_sub(lo_bit);
     if total == 0 || values.len() < 2 {
         return;
     }
-    let passes = total.div_ceil(11) as usize;
+    let passes = total.div_ceil(13) as usize;
     let digit = total.div_ceil(passes as u32);
     let shifts: Vec<u32> = (0..passes as u32).map(|k| lo_bit + k * digit).collect();
     let masks: Vec<u64> = shifts.iter().map(|&s| (1u64 << digit.min(hi_bit - s)) - 1).collect();
     let width = 1usize << digit;
+    let chunks = rayon::current_num_threads().min(values.len() / RADIX_MIN_CHUNK).max(1);
+    let mut buffer = vec![0u64; values.len()];
+    if chunks > 1 {
+        for (&shift, &mask) in shifts.iter().zip(&masks) {
+            if radix_pass_chunked(values, &mut buffer, chunks, width, |v| ((v >> shift) & mask) as usize) {
+                std::mem::swap(values, &mut buffer);
+            }
+        }
+        return;
+    }
     let mut counts = vec![0usize; width * passes];
     for &v in values.iter() {
         for (k, (&s, &m)) in shifts.iter().zip(&masks).enumerate() {
             counts[k * width + ((v >> s) & m) as usize] += 1;
         }
     }
-    let mut buffer = vec![0u64; values.len()];
     for (k, (&shift, &mask)) in shifts.iter().zip(&masks).enumerate() {
         let counts = &mut counts[k * width..(k + 1) * width];
         if counts.contains(&values.len()) {
@@ -400,6 +441,50 @@ fn radix_sort(values: &mut Vec<u64>, lo_bit: u32, hi_bit: u32) {
         }
         std::mem::swap(values, &mut buffer);
     }
+}
+
+/// One stable scatter of `values` into `out` by `digit` (below `width`), the values cut into
+/// `chunks` runs scattered in parallel: run `c`'s values of digit `d` go to the slice of `out`
+/// after every digit below `d` and after the earlier runs' values of digit `d`. Returns false (and
+/// writes nothing) when every value has the same digit.
+fn radix_pass_chunked(
+    values: &[u64],
+    out: &mut [u64],
+    chunks: usize,
+    width: usize,
+    digit: impl Fn(u64) -> usize + Sync,
+) -> bool {
+    let chunk_len = values.len().div_ceil(chunks);
+    let counts: Vec<Vec<usize>> = values
+        .par_chunks(chunk_len)
+        .map(|run| {
+            let mut c = vec![0usize; width];
+            run.iter().for_each(|&v| c[digit(v)] += 1);
+            c
+        })
+        .collect();
+    if (0..width).any(|d| counts.iter().map(|c| c[d]).sum::<usize>() == values.len()) {
+        return false;
+    }
+    let mut slices: Vec<Vec<&mut [u64]>> = counts.iter().map(|_| Vec::with_capacity(width)).collect();
+    let mut rest = out;
+    for d in 0..width {
+        for (c, run) in counts.iter().enumerate() {
+            let (slice, tail) = std::mem::take(&mut rest).split_at_mut(run[d]);
+            slices[c].push(slice);
+            rest = tail;
+        }
+    }
+    values.par_chunks(chunk_len).zip(slices).for_each(|(run, mut slots)| {
+        for &v in run {
+            let slot = &mut slots[digit(v)];
+            if let Some((first, tail)) = std::mem::take(slot).split_first_mut() {
+                *first = v;
+                *slot = tail;
+            }
+        }
+    });
+    true
 }
 
 fn mean_point(points: &[Point3<f32>], run: &[usize]) -> Point3<f32> {
@@ -610,6 +695,44 @@ mod tests {
                 values.iter().map(|v| v >> 7).collect::<Vec<_>>(),
                 want.iter().map(|v| v >> 7).collect::<Vec<_>>()
             );
+        }
+    }
+
+    #[test]
+    fn keys_by_reciprocal_match_division() {
+        // random coordinates, and coordinates on and next to voxel boundaries (where x * (1 / size)
+        // and x / size may floor differently), for sizes whose reciprocal is inexact
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for size in [0.005, 0.002, 0.003, 0.0007, 0.1, 1.0 / 3.0, 1e-6] {
+            let bounds = Bounds { min: Point3::new(-100.0, -100.0, -100.0), max: Point3::new(100.0, 100.0, 100.0) };
+            let grid = Grid::new(&bounds, size).expect("grid");
+            let mut xs: Vec<f32> = (0..20_000).map(|_| (rng.random::<f32>() - 0.5) * 20.0).collect();
+            for k in -2000i32..2000 {
+                let on = (f64::from(k) * size) as f32;
+                xs.extend([on, on.next_up(), on.next_down()]);
+            }
+            for x in xs.chunks(3).filter(|c| c.len() == 3) {
+                let p = Point3::new(x[0], x[1], x[2]);
+                let want = [0, 1, 2].map(|a| (f64::from(p[a]) / size).floor() as i64);
+                assert_eq!(grid.key(&p), want, "{p} at {size} m");
+            }
+        }
+    }
+
+    #[test]
+    fn chunked_radix_passes_match_the_serial_sort() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        // 300 000 values: 19 index bits under 25 key bits (two passes); few distinct keys
+        let values: Vec<u64> = (0..300_000u64).map(|i| (rng.random_range(0..1u64 << 25) << 19) | i).collect();
+        let few: Vec<u64> = (0..300_000u64).map(|i| (rng.random_range(0..3u64) << 19) | i).collect();
+        for input in [values, few] {
+            let mut want = input.clone();
+            want.sort_unstable(); // the index bits make every value distinct: the stable order
+            for threads in [1, 2, 3] {
+                let mut got = input.clone();
+                in_pool(threads, || radix_sort(&mut got, 19, 19 + 25));
+                assert!(got == want, "{threads} threads");
+            }
         }
     }
 
