@@ -43,6 +43,13 @@ impl TargetIndex {
     }
 }
 
+/// `|p - q|²` in f32, summed as the indexes sum it (so a kept correspondence's distance and gate
+/// test are bit for bit a search's).
+fn dist_sq(p: &Point3<f32>, q: &Point3<f32>) -> f32 {
+    let (dx, dy, dz) = (p.x - q.x, p.y - q.y, p.z - q.z);
+    dx * dx + dy * dy + dz * dz
+}
+
 /// Sums of one linearisation (about `centre`, rotation scaled by `1/length`).
 #[derive(Clone, Copy)]
 pub(crate) struct System {
@@ -98,15 +105,18 @@ pub(crate) fn step_motion(delta: &Vector6<f64>, centre: &Vector3<f64>, length: f
 
 /// What the last search of one source point found: its correspondence, or for a miss how far the
 /// nearest target point was known to be and where the source point was then. The pose moves
-/// little between iterations, so the next search is bounded by the previous correspondence (the
-/// nearest target point is at most that far: far fewer cells or tree nodes visited), and a point
-/// that has not moved past a miss's clearance is a miss again without a search. Both are exact:
-/// the correspondences are the ones a full search would find.
+/// little between iterations, so a point that has not moved past a miss's clearance is a miss
+/// again without a search, and in a tree a correspondence is kept without a search while the point
+/// stays nearer to it than to the runner-up (the next nearest target point when it was searched);
+/// otherwise the next search is bounded by the previous correspondence (the nearest target point
+/// is at most that far: far fewer cells or tree nodes visited). All exact: the correspondences are
+/// the ones a full search would find.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Hint {
     /// Index of the correspondence, `u32::MAX` for none.
     index: u32,
-    /// For a miss: no target point was closer than this (m) to `at`; 0 when unknown.
+    /// For a miss: no target point was closer than this (m) to `at`. For a correspondence found
+    /// in a tree: no other target point was. 0 when unknown.
     clear_m: f32,
     at: Point3<f32>,
 }
@@ -121,7 +131,7 @@ impl Hint {
 const MISS_REACH: f32 = 1.5;
 
 /// The nearest target point within `max_m` of `q`, searched as `hint` allows (see [`Hint`]); the
-/// hint is updated.
+/// hint is updated. A tree's searches go through [`tree_correspondence`].
 fn correspondence(
     index: &TargetIndex,
     points: &[Point3<f32>],
@@ -131,6 +141,9 @@ fn correspondence(
 ) -> Option<Neighbor> {
     // relative and absolute slack for f32 rounding of the distances
     let widen = |d: f32| d * (1.0 + 1e-4) + 1e-6;
+    if let TargetIndex::Tree(tree) = index {
+        return tree_correspondence(tree, points, q, max_m, hint);
+    }
     if let Some(prev) = points.get(hint.index as usize) {
         // a hair wider than the previous correspondence, so that it stays inside
         let found = index.nearest_within(q, widen((prev - q).norm()).min(max_m));
@@ -150,6 +163,47 @@ fn correspondence(
         _ => {
             let clear_m = found.map_or(reach, |nb| nb.dist_sq.sqrt());
             *hint = Hint { index: u32::MAX, clear_m, at: *q };
+            None
+        }
+    }
+}
+
+/// [`correspondence`] in a tree: searches learn the runner-up's distance, so that a point that has
+/// moved by `δ` since its search, `d` from its correspondence and with no other target point nearer
+/// than `c` then, keeps it without a search while `d + δ < c - δ` (every other point is at least
+/// `c - δ` away now). A miss is skipped within its clearance as in [`correspondence`].
+fn tree_correspondence(
+    tree: &LeafTree,
+    points: &[Point3<f32>],
+    q: &Point3<f32>,
+    max_m: f32,
+    hint: &mut Hint,
+) -> Option<Neighbor> {
+    let widen = |d: f32| d * (1.0 + 1e-4) + 1e-6;
+    let moved = widen((q - hint.at).norm());
+    if let Some(prev) = points.get(hint.index as usize) {
+        let d_sq = dist_sq(prev, q);
+        if widen(d_sq.sqrt()) + 2.0 * moved < hint.clear_m * (1.0 - 1e-4) {
+            // still the nearest, and every other target point is farther than it
+            return (d_sq <= max_m * max_m).then_some(Neighbor { index: hint.index, dist_sq: d_sq });
+        }
+    } else if hint.clear_m > 0.0 && moved + widen(max_m) < hint.clear_m {
+        return None; // still farther than the gate from every target point
+    }
+    let reach = MISS_REACH * max_m;
+    let (found, next_sq) = tree.nearest_two_within(q, reach);
+    match found {
+        Some(nb) if nb.dist_sq <= max_m * max_m => {
+            *hint = Hint { index: nb.index, clear_m: next_sq.sqrt(), at: *q };
+            found
+        }
+        Some(nb) => {
+            // nearest beyond the gate: neither a correspondence nor one to keep
+            *hint = Hint { index: u32::MAX, clear_m: nb.dist_sq.sqrt(), at: *q };
+            None
+        }
+        None => {
+            *hint = Hint { index: u32::MAX, clear_m: reach, at: *q };
             None
         }
     }

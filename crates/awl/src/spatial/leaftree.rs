@@ -202,14 +202,28 @@ impl LeafTree {
     /// distance so far. One comparison a level on the way down: ICP's queries, bounded by the
     /// previous correspondence, mostly end in one or two leaves.
     pub(crate) fn nearest_within(&self, q: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
+        self.search::<false>(q, radius_m).0
+    }
+
+    /// [`LeafTree::nearest_within`], and the squared distance of the next nearest point within
+    /// `radius_m` (`radius_m²` when there is none): every other point is at least that far.
+    pub(crate) fn nearest_two_within(&self, q: &Point3<f32>, radius_m: f32) -> (Option<Neighbor>, f32) {
+        self.search::<true>(q, radius_m)
+    }
+
+    /// The nearest point within `radius_m`, and with `TWO` the runner-up's squared distance
+    /// (pruning by it instead of the nearest's); see [`LeafTree::nearest_within`].
+    fn search<const TWO: bool>(&self, q: &Point3<f32>, radius_m: f32) -> (Option<Neighbor>, f32) {
         let q = [q.x, q.y, q.z];
         let reach = radius_m * radius_m;
         if self.ids.is_empty() || reach.is_nan() {
-            return None;
+            return (None, reach);
         }
-        // the best so far as a candidate: the smallest is the nearest, then the lowest index
+        // the best so far as a candidate: the smallest is the nearest, then the lowest index;
+        // with TWO, `second` is the next smallest
         let mut best = candidate(reach, u32::MAX);
-        let bound = |best: u64| neighbor(best).dist_sq;
+        let mut second = best;
+        let bound = |best: u64, second: u64| neighbor(if TWO { second } else { best }).dist_sq;
         // the pending farther children: at most one per level, and a tree over at most 2^32
         // points has fewer than 32 levels of splits (leaves hold 16 or more); (gap, id, start, end)
         let mut stack = [(0.0f32, 0u32, 0u32, 0u32); 32];
@@ -223,13 +237,13 @@ impl LeafTree {
         let mut top = 1;
         while top > 0 {
             top -= 1;
-            if stack[top].0 > bound(best) {
+            if stack[top].0 > bound(best, second) {
                 continue;
             }
             let mut node = node_of(stack[top]);
             // its box, then down to a leaf by the split planes (the axis the partition split on),
             // the farther child of each step left on the stack with its distance across the split
-            if self.boxes[node.id].gap(q) > bound(best) {
+            if self.boxes[node.id].gap(q) > bound(best, second) {
                 continue;
             }
             while !node.is_leaf() {
@@ -241,7 +255,7 @@ impl LeafTree {
                 } else {
                     (r, l, (q[axis] - l_hi).max(0.0))
                 };
-                if across * across <= bound(best) {
+                if across * across <= bound(best, second) {
                     stack[top] = entry(across * across, far);
                     top += 1;
                 }
@@ -249,19 +263,24 @@ impl LeafTree {
             }
             // the leaf's points as candidates, the smallest kept (no branch)
             let r = node.start..node.end;
-            best = self.xs[r.clone()]
-                .iter()
-                .zip(&self.ys[r.clone()])
-                .zip(&self.zs[r.clone()])
-                .zip(&self.ids[r])
-                .map(|(((x, y), z), &i)| {
-                    let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
-                    candidate(dx * dx + dy * dy + dz * dz, i)
-                })
-                .fold(best, u64::min);
+            let candidates =
+                self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r.clone()]).zip(&self.ids[r]).map(
+                    |(((x, y), z), &i)| {
+                        let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
+                        candidate(dx * dx + dy * dy + dz * dz, i)
+                    },
+                );
+            if TWO {
+                for c in candidates {
+                    second = second.min(c.max(best));
+                    best = best.min(c);
+                }
+            } else {
+                best = candidates.fold(best, u64::min);
+            }
         }
-        let best = neighbor(best);
-        (best.index != u32::MAX).then_some(best)
+        let (best, second) = (neighbor(best), neighbor(second));
+        ((best.index != u32::MAX).then_some(best), if TWO { second.dist_sq } else { reach })
     }
 }
 
@@ -296,9 +315,19 @@ mod tests {
                 } else {
                     q
                 };
+                // the runner-up: the second smallest squared distance within the radius
+                let mut all: Vec<f32> = points.iter().map(|p| (p - q).norm_squared()).collect();
+                all.sort_by(f32::total_cmp);
                 for radius in [0.0, 0.004, 0.01, 0.05, 3.0] {
                     let want = brute::nearest(&points, &q).filter(|n| n.dist_sq <= radius * radius);
                     assert_eq!(tree.nearest_within(&q, radius), want, "{q:?} within {radius}");
+                    let (nearest, next_sq) = tree.nearest_two_within(&q, radius);
+                    assert_eq!(nearest, want, "{q:?} within {radius}");
+                    let want_next = all.get(1).copied().filter(|&d| d <= radius * radius).unwrap_or(radius * radius);
+                    assert!(
+                        (next_sq - want_next).abs() <= 1e-6 * want_next.max(1e-9),
+                        "{q:?}: {next_sq} vs {want_next}"
+                    );
                 }
             }
         }
