@@ -35,12 +35,19 @@ impl TargetIndex {
         }
     }
 
-    fn nearest_within(&self, q: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
+    /// The nearest point within `radius_m`, and a squared distance no other point is nearer than:
+    /// the tree's runner-up (or `radius_m²`), 0 for the grid (not known).
+    fn nearest_two_within(&self, q: &Point3<f32>, radius_m: f32) -> (Option<Neighbor>, f32) {
         match self {
-            Self::Tree(t) => t.nearest_within(q, radius_m),
-            Self::Grid(g) => g.nearest_within(q, radius_m),
+            Self::Tree(t) => t.nearest_two_within(q, radius_m),
+            Self::Grid(g) => (g.nearest_within(q, radius_m), 0.0),
         }
     }
+}
+
+/// A distance a hair longer, against f32 rounding (relative and absolute slack).
+fn widen(d: f32) -> f32 {
+    d * (1.0 + 1e-4) + 1e-6
 }
 
 /// `|p - q|²` in f32, summed as the indexes sum it (so a kept correspondence's distance and gate
@@ -131,7 +138,10 @@ impl Hint {
 const MISS_REACH: f32 = 1.5;
 
 /// The nearest target point within `max_m` of `q`, searched as `hint` allows (see [`Hint`]); the
-/// hint is updated. A tree's searches go through [`tree_correspondence`].
+/// hint is updated. A tree's search learns the runner-up's distance too, so that a point that has
+/// moved by `δ` since its search, `d` from its correspondence and with no other target point nearer
+/// than `c` then, keeps it without a search while `d + δ < c - δ` (every other point is at least
+/// `c - δ` away now). In a grid the next search is bounded by the previous correspondence instead.
 fn correspondence(
     index: &TargetIndex,
     points: &[Point3<f32>],
@@ -139,71 +149,35 @@ fn correspondence(
     max_m: f32,
     hint: &mut Hint,
 ) -> Option<Neighbor> {
-    // relative and absolute slack for f32 rounding of the distances
-    let widen = |d: f32| d * (1.0 + 1e-4) + 1e-6;
-    if let TargetIndex::Tree(tree) = index {
-        return tree_correspondence(tree, points, q, max_m, hint);
-    }
     if let Some(prev) = points.get(hint.index as usize) {
-        // a hair wider than the previous correspondence, so that it stays inside
-        let found = index.nearest_within(q, widen((prev - q).norm()).min(max_m));
-        *hint = Hint { index: found.map_or(u32::MAX, |nb| nb.index), ..Hint::NONE };
-        return found;
-    }
-    if hint.clear_m > 0.0 && widen((q - hint.at).norm()) + widen(max_m) < hint.clear_m {
+        match index {
+            TargetIndex::Tree(_) => {
+                let d_sq = dist_sq(prev, q);
+                if widen(d_sq.sqrt()) + 2.0 * widen((q - hint.at).norm()) < hint.clear_m * (1.0 - 1e-4) {
+                    // still the nearest, and every other target point is farther than it
+                    return (d_sq <= max_m * max_m).then_some(Neighbor { index: hint.index, dist_sq: d_sq });
+                }
+            }
+            TargetIndex::Grid(grid) => {
+                // a hair wider than the previous correspondence, so that it stays inside
+                let found = grid.nearest_within(q, widen((prev - q).norm()).min(max_m));
+                *hint = Hint { index: found.map_or(u32::MAX, |nb| nb.index), ..Hint::NONE };
+                return found;
+            }
+        }
+    } else if hint.clear_m > 0.0 && widen((q - hint.at).norm()) + widen(max_m) < hint.clear_m {
         return None; // still farther than the gate from every target point
     }
     let reach = MISS_REACH * max_m;
-    let found = index.nearest_within(q, reach);
-    match found {
-        Some(nb) if nb.dist_sq <= max_m * max_m => {
-            *hint = Hint { index: nb.index, ..Hint::NONE };
-            found
-        }
-        _ => {
-            let clear_m = found.map_or(reach, |nb| nb.dist_sq.sqrt());
-            *hint = Hint { index: u32::MAX, clear_m, at: *q };
-            None
-        }
-    }
-}
-
-/// [`correspondence`] in a tree: searches learn the runner-up's distance, so that a point that has
-/// moved by `δ` since its search, `d` from its correspondence and with no other target point nearer
-/// than `c` then, keeps it without a search while `d + δ < c - δ` (every other point is at least
-/// `c - δ` away now). A miss is skipped within its clearance as in [`correspondence`].
-fn tree_correspondence(
-    tree: &LeafTree,
-    points: &[Point3<f32>],
-    q: &Point3<f32>,
-    max_m: f32,
-    hint: &mut Hint,
-) -> Option<Neighbor> {
-    let widen = |d: f32| d * (1.0 + 1e-4) + 1e-6;
-    let moved = widen((q - hint.at).norm());
-    if let Some(prev) = points.get(hint.index as usize) {
-        let d_sq = dist_sq(prev, q);
-        if widen(d_sq.sqrt()) + 2.0 * moved < hint.clear_m * (1.0 - 1e-4) {
-            // still the nearest, and every other target point is farther than it
-            return (d_sq <= max_m * max_m).then_some(Neighbor { index: hint.index, dist_sq: d_sq });
-        }
-    } else if hint.clear_m > 0.0 && moved + widen(max_m) < hint.clear_m {
-        return None; // still farther than the gate from every target point
-    }
-    let reach = MISS_REACH * max_m;
-    let (found, next_sq) = tree.nearest_two_within(q, reach);
+    let (found, next_sq) = index.nearest_two_within(q, reach);
     match found {
         Some(nb) if nb.dist_sq <= max_m * max_m => {
             *hint = Hint { index: nb.index, clear_m: next_sq.sqrt(), at: *q };
             found
         }
-        Some(nb) => {
-            // nearest beyond the gate: neither a correspondence nor one to keep
-            *hint = Hint { index: u32::MAX, clear_m: nb.dist_sq.sqrt(), at: *q };
-            None
-        }
-        None => {
-            *hint = Hint { index: u32::MAX, clear_m: reach, at: *q };
+        _ => {
+            let clear_m = found.map_or(reach, |nb| nb.dist_sq.sqrt());
+            *hint = Hint { index: u32::MAX, clear_m, at: *q };
             None
         }
     }

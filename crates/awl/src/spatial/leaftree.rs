@@ -196,34 +196,22 @@ impl LeafTree {
     }
 
     /// The nearest point within `radius_m` (inclusive) of `q`, the lowest index among equally
-    /// near ones; `None` when there is none. Depth first: down the split planes to the query's
-    /// leaf, each farther child kept with its distance across the plane (a lower bound of its
-    /// box's), and a kept child searched only while that bound and then its box are within the best
-    /// distance so far. One comparison a level on the way down: ICP's queries, bounded by the
-    /// previous correspondence, mostly end in one or two leaves.
-    pub(crate) fn nearest_within(&self, q: &Point3<f32>, radius_m: f32) -> Option<Neighbor> {
-        self.search::<false>(q, radius_m).0
-    }
-
-    /// [`LeafTree::nearest_within`], and the squared distance of the next nearest point within
-    /// `radius_m` (`radius_m²` when there is none): every other point is at least that far.
+    /// near ones (`None` when there is none), and the squared distance of the next nearest point
+    /// within `radius_m` (`radius_m²` when there is none): every other point is at least that far.
+    /// Depth first: down the split planes to the query's leaf, each farther child kept with its
+    /// distance across the plane (a lower bound of its box's), and a kept child searched only while
+    /// that bound and then its box are within the runner-up's distance so far. One comparison a
+    /// level on the way down: ICP's queries mostly end in one or two leaves.
     pub(crate) fn nearest_two_within(&self, q: &Point3<f32>, radius_m: f32) -> (Option<Neighbor>, f32) {
-        self.search::<true>(q, radius_m)
-    }
-
-    /// The nearest point within `radius_m`, and with `TWO` the runner-up's squared distance
-    /// (pruning by it instead of the nearest's); see [`LeafTree::nearest_within`].
-    fn search<const TWO: bool>(&self, q: &Point3<f32>, radius_m: f32) -> (Option<Neighbor>, f32) {
         let q = [q.x, q.y, q.z];
         let reach = radius_m * radius_m;
         if self.ids.is_empty() || reach.is_nan() {
             return (None, reach);
         }
-        // the best so far as a candidate: the smallest is the nearest, then the lowest index;
-        // with TWO, `second` is the next smallest
+        // the best two so far as candidates: the smallest is the nearest, then the lowest index
         let mut best = candidate(reach, u32::MAX);
         let mut second = best;
-        let bound = |best: u64, second: u64| neighbor(if TWO { second } else { best }).dist_sq;
+        let bound = |second: u64| neighbor(second).dist_sq;
         // the pending farther children: at most one per level, and a tree over at most 2^32
         // points has fewer than 32 levels of splits (leaves hold 16 or more); (gap, id, start, end)
         let mut stack = [(0.0f32, 0u32, 0u32, 0u32); 32];
@@ -237,13 +225,13 @@ impl LeafTree {
         let mut top = 1;
         while top > 0 {
             top -= 1;
-            if stack[top].0 > bound(best, second) {
+            if stack[top].0 > bound(second) {
                 continue;
             }
             let mut node = node_of(stack[top]);
             // its box, then down to a leaf by the split planes (the axis the partition split on),
             // the farther child of each step left on the stack with its distance across the split
-            if self.boxes[node.id].gap(q) > bound(best, second) {
+            if self.boxes[node.id].gap(q) > bound(second) {
                 continue;
             }
             while !node.is_leaf() {
@@ -255,13 +243,13 @@ impl LeafTree {
                 } else {
                     (r, l, (q[axis] - l_hi).max(0.0))
                 };
-                if across * across <= bound(best, second) {
+                if across * across <= bound(second) {
                     stack[top] = entry(across * across, far);
                     top += 1;
                 }
                 node = near;
             }
-            // the leaf's points as candidates, the smallest kept (no branch)
+            // the leaf's points as candidates, the smallest two kept (no branch)
             let r = node.start..node.end;
             let candidates =
                 self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r.clone()]).zip(&self.ids[r]).map(
@@ -270,17 +258,13 @@ impl LeafTree {
                         candidate(dx * dx + dy * dy + dz * dz, i)
                     },
                 );
-            if TWO {
-                for c in candidates {
-                    second = second.min(c.max(best));
-                    best = best.min(c);
-                }
-            } else {
-                best = candidates.fold(best, u64::min);
+            for c in candidates {
+                second = second.min(c.max(best));
+                best = best.min(c);
             }
         }
-        let (best, second) = (neighbor(best), neighbor(second));
-        ((best.index != u32::MAX).then_some(best), if TWO { second.dist_sq } else { reach })
+        let best = neighbor(best);
+        ((best.index != u32::MAX).then_some(best), bound(second))
     }
 }
 
@@ -291,7 +275,7 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     #[test]
-    fn nearest_within_equals_brute_force_ties_by_index() {
+    fn nearest_two_within_equals_brute_force_ties_by_index() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let random: Vec<Point3<f32>> = (0..5000)
             .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), 0.1 * rng.random::<f32>()))
@@ -320,7 +304,6 @@ mod tests {
                 all.sort_by(f32::total_cmp);
                 for radius in [0.0, 0.004, 0.01, 0.05, 3.0] {
                     let want = brute::nearest(&points, &q).filter(|n| n.dist_sq <= radius * radius);
-                    assert_eq!(tree.nearest_within(&q, radius), want, "{q:?} within {radius}");
                     let (nearest, next_sq) = tree.nearest_two_within(&q, radius);
                     assert_eq!(nearest, want, "{q:?} within {radius}");
                     let want_next = all.get(1).copied().filter(|&d| d <= radius * radius).unwrap_or(radius * radius);
@@ -332,7 +315,7 @@ mod tests {
             }
         }
         let empty = LeafTree::new(&[]).expect("empty");
-        assert_eq!(empty.nearest_within(&Point3::origin(), 1.0), None);
+        assert_eq!(empty.nearest_two_within(&Point3::origin(), 1.0), (None, 1.0));
         assert!(LeafTree::new(&[Point3::new(0.0, f32::INFINITY, 0.0)]).is_err());
     }
 }
