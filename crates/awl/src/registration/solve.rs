@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3
 use rayon::prelude::*;
 
 use super::kernel::Kernel;
-use crate::spatial::{LeafTree, Neighbor, ProjectiveGrid};
+use crate::spatial::{LeafTree, Neighbor, ProjectiveGrid, dist_sq, widen};
 
 const CHUNK: usize = 2048;
 
@@ -43,18 +43,6 @@ impl TargetIndex {
             Self::Grid(g) => (g.nearest_within(q, radius_m), 0.0),
         }
     }
-}
-
-/// A distance a hair longer, against f32 rounding (relative and absolute slack).
-fn widen(d: f32) -> f32 {
-    d * (1.0 + 1e-4) + 1e-6
-}
-
-/// `|p - q|²` in f32, summed as the indexes sum it (so a kept correspondence's distance and gate
-/// test are bit for bit a search's).
-fn dist_sq(p: &Point3<f32>, q: &Point3<f32>) -> f32 {
-    let (dx, dy, dz) = (p.x - q.x, p.y - q.y, p.z - q.z);
-    dx * dx + dy * dy + dz * dz
 }
 
 /// Sums of one linearisation (about `centre`, rotation scaled by `1/length`).
@@ -152,7 +140,8 @@ fn correspondence(
     if let Some(prev) = points.get(hint.index as usize) {
         match index {
             TargetIndex::Tree(_) => {
-                let d_sq = dist_sq(prev, q);
+                // summed as the indexes sum it: the distance and gate test are bit for bit a search's
+                let d_sq = dist_sq(prev.coords.into(), q.coords.into());
                 if widen(d_sq.sqrt()) + 2.0 * widen((q - hint.at).norm()) < hint.clear_m * (1.0 - 1e-4) {
                     // still the nearest, and every other target point is farther than it
                     return (d_sq <= max_m * max_m).then_some(Neighbor { index: hint.index, dist_sq: d_sq });

@@ -23,8 +23,8 @@
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use super::Neighbor;
 use super::leaftree::{LeafTree, Node, candidate, neighbor};
+use super::{Neighbor, widen};
 
 use crate::error::Result;
 
@@ -80,7 +80,6 @@ const GUESS: f32 = 1.15;
 
 /// The rows of `leaf`'s queries (tree order) into `rows` (`k` per query); see the module docs.
 fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows: &mut [Neighbor]) {
-    let widen = |r: f32| r * (1.0 + 1e-4) + 1e-6;
     let (mut path, mut done) = (std::mem::take(&mut scratch.path), std::mem::take(&mut scratch.done));
     path.clear();
     done.clear();

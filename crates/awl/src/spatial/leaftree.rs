@@ -12,7 +12,7 @@
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use super::Neighbor;
+use super::{Neighbor, dist_sq};
 
 use crate::error::Result;
 
@@ -189,10 +189,13 @@ impl LeafTree {
     pub(super) fn distances(&self, q: [f32; 3], node: Node, dist: &mut Vec<f32>) {
         let r = node.start..node.end;
         dist.clear();
-        dist.extend(self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r]).map(|((x, y), z)| {
-            let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
-            dx * dx + dy * dy + dz * dz
-        }));
+        dist.extend(
+            self.xs[r.clone()]
+                .iter()
+                .zip(&self.ys[r.clone()])
+                .zip(&self.zs[r])
+                .map(|((&x, &y), &z)| dist_sq([x, y, z], q)),
+        );
     }
 
     /// The nearest point within `radius_m` (inclusive) of `q`, the lowest index among equally
@@ -251,13 +254,12 @@ impl LeafTree {
             }
             // the leaf's points as candidates, the smallest two kept (no branch)
             let r = node.start..node.end;
-            let candidates =
-                self.xs[r.clone()].iter().zip(&self.ys[r.clone()]).zip(&self.zs[r.clone()]).zip(&self.ids[r]).map(
-                    |(((x, y), z), &i)| {
-                        let (dx, dy, dz) = (x - q[0], y - q[1], z - q[2]);
-                        candidate(dx * dx + dy * dy + dz * dz, i)
-                    },
-                );
+            let candidates = self.xs[r.clone()]
+                .iter()
+                .zip(&self.ys[r.clone()])
+                .zip(&self.zs[r.clone()])
+                .zip(&self.ids[r])
+                .map(|(((&x, &y), &z), &i)| candidate(dist_sq([x, y, z], q), i));
             for c in candidates {
                 second = second.min(c.max(best));
                 best = best.min(c);

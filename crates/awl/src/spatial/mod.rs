@@ -20,6 +20,21 @@ use nalgebra::Point3;
 
 use crate::error::{Error, Result};
 
+/// `|a - b|²` in f32, summed x, y, z: every index computes its distances so, and ICP's kept
+/// correspondences too, so that a distance is the same bits wherever it is computed.
+#[inline(always)]
+pub(crate) fn dist_sq(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+    dx * dx + dy * dy + dz * dz
+}
+
+/// A distance or reach a hair longer, against f32 rounding (1e-4 relative and 1e-6 m absolute
+/// slack).
+#[inline]
+pub(crate) fn widen(d: f32) -> f32 {
+    d * (1.0 + 1e-4) + 1e-6
+}
+
 /// A neighbour: index into the indexed point slice, squared distance (m²).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Neighbor {

@@ -17,7 +17,7 @@
 
 use nalgebra::Point3;
 
-use super::Neighbor;
+use super::{Neighbor, dist_sq};
 use crate::error::{Error, Result};
 
 /// Grid cells per axis at most.
@@ -138,8 +138,7 @@ impl ProjectiveGrid {
             let row = y * self.dims[0];
             let (a, b) = (self.starts[row + w.x.0] as usize, self.starts[row + w.x.1 + 1] as usize);
             for &(q, id) in &self.sorted[a..b] {
-                let (dx, dy, dz) = (p.x - q[0], p.y - q[1], p.z - q[2]);
-                visit(dx * dx + dy * dy + dz * dz, id);
+                visit(dist_sq([p.x, p.y, p.z], q), id);
             }
         }
     }
