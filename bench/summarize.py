@@ -191,8 +191,9 @@ def micro(out, stage_t):
              "(awl: both inputs and both thread counts; peers: every peer of the stage, both workers).", "",
              "| stage | input | threads | awl median | best peer | peer median | awl / peer | awl peak | peers peak | check (awl; peer) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for stage in MICRO + ["load_view", "icp_views", "joint"]:
-        file_stage = stage if stage not in ("load_view", "icp_views", "joint") else "scan"
+    scan_benches = ["load_view", "icp_views", "joint"]  # divan group `scan`: one output file
+    for stage in MICRO + scan_benches:
+        file_stage = "scan" if stage in scan_benches else stage
         awl = parse_divan(os.path.join(sd, f"awl-{file_stage}.txt"))
         checks = parse_checks(os.path.join(sd, f"awl-{file_stage}.err"))
         a_peak = peak_kb(os.path.join(sd, f"awl-{file_stage}.time"))

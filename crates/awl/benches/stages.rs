@@ -202,7 +202,17 @@ macro_rules! input_group {
 input_group!(sim300k);
 input_group!(table_mug);
 
-/// The per-view stages of `awl fuse` on the bench scan (views 0 and 1).
+/// View `i` of the bench scan with the pipeline's default per-view preparation (2 mm voxel, SOR,
+/// normals toward the camera; camera frame), and its recorded pose.
+fn prepared_view(scan: &awl::io::scan::Scan, i: usize, config: &FuseConfig) -> (Isometry3<f64>, PointCloud) {
+    let rays = scan.camera.map(|c| c.intrinsics.ray_table());
+    let v = load_view(scan, i, rays.as_deref()).expect("load");
+    let cloud = downsample(&v.cloud_camera, &config.view_voxel).expect("voxel");
+    let cloud = cloud.select(&statistical(&cloud, &config.outliers).expect("sor"));
+    (v.world_from_camera, with_normals(&cloud, &config.normals, Some(Point3::origin())).expect("normals"))
+}
+
+/// The per-view stages of `awl fuse` on the bench scan (views 0 and 1), and the joint refinement.
 #[divan::bench_group(sample_count = 10)]
 mod scan {
     use super::*;
@@ -233,15 +243,8 @@ mod scan {
     fn icp_views(b: Bencher, threads: usize) {
         let config = FuseConfig::default();
         let scan = scan();
-        let rays = scan.camera.map(|c| c.intrinsics.ray_table());
-        let prepare = |i: usize| {
-            let v = super::load_view(scan, i, rays.as_deref()).expect("load");
-            let cloud = downsample(&v.cloud_camera, &config.view_voxel).expect("voxel");
-            let cloud = cloud.select(&statistical(&cloud, &config.outliers).expect("sor"));
-            (v.world_from_camera, with_normals(&cloud, &config.normals, Some(Point3::origin())).expect("normals"))
-        };
-        let (seed0, view0) = prepare(0);
-        let (seed1, view1) = prepare(1);
+        let (seed0, view0) = prepared_view(scan, 0, &config);
+        let (seed1, view1) = prepared_view(scan, 1, &config);
         let model = downsample(&view0.transformed(&seed0), &config.merge_voxel).expect("voxel");
         let params = &config.registration.icp;
         let run = || register(&view1, &model, &seed1, params).expect("icp");
@@ -268,15 +271,7 @@ mod scan {
         let config = FuseConfig::default();
         let scan = scan();
         let truth = read_truth(&scan.dir).expect("the bench scan's truth.json");
-        let rays = scan.camera.map(|c| c.intrinsics.ray_table());
-        let views: Vec<PointCloud> = (0..scan.views.len())
-            .map(|i| {
-                let v = super::load_view(scan, i, rays.as_deref()).expect("load");
-                let cloud = downsample(&v.cloud_camera, &config.view_voxel).expect("voxel");
-                let cloud = cloud.select(&statistical(&cloud, &config.outliers).expect("sor"));
-                with_normals(&cloud, &config.normals, Some(Point3::origin())).expect("normals")
-            })
-            .collect();
+        let views: Vec<PointCloud> = (0..scan.views.len()).map(|i| prepared_view(scan, i, &config).1).collect();
         let clouds: Vec<&PointCloud> = views.iter().collect();
         let true_poses: Vec<Isometry3<f64>> = truth.views.iter().map(|v| v.world_from_camera).collect();
         let mut rng = ChaCha8Rng::seed_from_u64(0);
