@@ -222,6 +222,15 @@ pub(crate) fn covariance(
     query: &Point3<f32>,
     indices: impl Iterator<Item = usize>,
 ) -> Option<Sym3> {
+    covariance_and_mean(points, query, indices).map(|(cov, _)| cov)
+}
+
+/// [`covariance`] and the mean of the points.
+pub(crate) fn covariance_and_mean(
+    points: &[Point3<f32>],
+    query: &Point3<f32>,
+    indices: impl Iterator<Item = usize>,
+) -> Option<(Sym3, Point3<f64>)> {
     let q = query.coords.cast::<f64>();
     let (mut sum, mut second, mut count) = (Vector3::<f64>::zeros(), Sym3::default(), 0usize);
     for i in indices {
@@ -237,7 +246,7 @@ pub(crate) fn covariance(
     let mean = sum * inv;
     let mut cov = second.scaled(inv);
     cov.add_outer(&mean, -1.0);
-    Some(cov)
+    Some((cov, Point3::from(q + mean)))
 }
 
 /// Unit normal and surface variation of a neighbourhood covariance; `None` when it is zero,

@@ -14,15 +14,17 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::cloud::PointCloud;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::filter::outlier::{SorParams, statistical_from_knn};
 use crate::normals::{NormalParams, covariance, orient_towards, plane_of};
-use crate::organized::{self, PixelGrid};
+use crate::organized::{self, Cleaned, PixelGrid};
 use crate::spatial::{KdIndex, KnnTable, Neighbor};
 
 /// A depth view's cloud without its statistical outliers, with unit normals oriented toward the
 /// camera (the origin; points whose normal is undefined dropped): both from each point's window of
-/// `(2 half + 1)^2` pixels on `grid` (see `organized`).
+/// `(2 half + 1)^2` pixels on `grid` (see `organized`). With `smoothing_m`, the points come back
+/// moved onto their local planes (at most that far, see `organized::onto_local_planes`; no colors),
+/// and the measured ones beside them: `(smoothed, Some(measured))`; else `(measured, None)`.
 ///
 /// # Errors
 /// Bad parameters, a non-finite cloud, a grid that is not the cloud's.
@@ -32,9 +34,22 @@ pub(crate) fn clean_on_grid(
     half: usize,
     sor: &SorParams,
     params: &NormalParams,
-) -> Result<PointCloud> {
-    let (sor, normals) = organized::clean(cloud, grid, half, sor, params)?;
-    with_oriented_normals(cloud.select(&sor.kept), normals, &Point3::origin())
+    smoothing_m: Option<f64>,
+) -> Result<(PointCloud, Option<PointCloud>)> {
+    if let Some(m) = smoothing_m.filter(|m| !m.is_finite() || *m < 0.0) {
+        return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
+    }
+    let Cleaned { sor, normals, centroids } = organized::clean(cloud, grid, half, sor, params)?;
+    let measured = cloud.select(&sor.kept);
+    let Some(max_shift) = smoothing_m else {
+        return Ok((with_oriented_normals(measured, normals, &Point3::origin())?, None));
+    };
+    let points = organized::onto_local_planes(&measured.points, &normals, &centroids, max_shift as f32);
+    let smoothed = PointCloud { points, normals: None, colors: None };
+    Ok((
+        with_oriented_normals(smoothed, normals.clone(), &Point3::origin())?,
+        Some(with_oriented_normals(measured, normals, &Point3::origin())?),
+    ))
 }
 
 /// `cloud` with `normals` (one per point) turned toward `viewpoint`, without the points whose

@@ -7,7 +7,7 @@ use nalgebra::Isometry3;
 use super::config::FuseConfig;
 use super::isolate::{drop_floor, keep_object};
 use super::multiview::register_views;
-use super::prepare::{Views, prepare};
+use super::prepare::{PreparedView, Views, prepare};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
@@ -43,11 +43,14 @@ fn timed<T>(
     Ok(value)
 }
 
-/// The views at their registered poses, one world-frame cloud of `points` points. Each view is
-/// moved in place and freed once copied, so the views and their merge are never held twice.
+/// The views' measured points at their registered poses, one world-frame cloud of `points` points.
+/// Each view is moved in place and freed once copied, so the views and their merge are never held
+/// twice.
 fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) -> PointCloud {
-    let mut clouds =
-        views.into_iter().zip(poses).filter_map(|(view, pose)| Some(view.ok()?.cloud.into_transformed(pose.as_ref()?)));
+    let mut clouds = views
+        .into_iter()
+        .zip(poses)
+        .filter_map(|(view, pose)| Some(view.ok()?.into_measured().into_transformed(pose.as_ref()?)));
     // The first view's buffers, grown once to hold them all.
     let Some(mut all) = clouds.next() else { return PointCloud::default() };
     let more = points.saturating_sub(all.len());
@@ -104,8 +107,12 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         }
     }
     progress("merge", 5, STAGES);
-    let merged_in: usize =
-        views.iter().zip(&registered.poses).filter_map(|(v, p)| p.and(v.as_ref().ok())).map(|v| v.cloud.len()).sum();
+    let merged_in: usize = views
+        .iter()
+        .zip(&registered.poses)
+        .filter_map(|(v, p)| p.and(v.as_ref().ok()))
+        .map(PreparedView::measured_len)
+        .sum();
     let merged = timed(&mut stages, "merge", merged_in, || {
         let model = downsample(&world_cloud(views, &registered.poses, merged_in), &config.merge_voxel)?;
         let n = model.len();

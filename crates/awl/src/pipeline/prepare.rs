@@ -29,6 +29,21 @@ pub(crate) struct PreparedView {
     pub cloud: PointCloud,
     /// Until the voxel grid: for a depth view, the pixel (`v * width + u`) of every point.
     pub pixels: Option<Vec<u32>>,
+    /// The measured points (camera frame, down-sampled and cleaned as `cloud`) when `cloud` holds
+    /// their smoothed copies for the registration (`registration_smoothing_m`).
+    pub measured: Option<PointCloud>,
+}
+
+impl PreparedView {
+    /// The points the model is made of: the measured ones.
+    pub(crate) fn into_measured(self) -> PointCloud {
+        self.measured.unwrap_or(self.cloud)
+    }
+
+    /// How many points [`PreparedView::into_measured`] gives.
+    pub(crate) fn measured_len(&self) -> usize {
+        self.measured.as_ref().unwrap_or(&self.cloud).len()
+    }
 }
 
 /// One entry per scan view: the prepared view, or why it cannot be used.
@@ -72,12 +87,17 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
 /// down-sampled; otherwise the view is down-sampled, then cleaned with one k-NN pass (see `clean`),
 /// unless it came with its own normals, which are kept.
 fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, height: usize) -> Result<PreparedView> {
-    let PreparedView { seed, cloud, pixels } = view;
+    let PreparedView { seed, cloud, pixels, .. } = view;
+    let mut measured = None;
     let cloud = match pixels {
         Some(pixels) => {
             let grid = PixelGrid::new(width, height, pixels)?;
-            let cleaned = clean_on_grid(&cloud, &grid, config.pixel_window, &config.outliers, &config.normals)?;
-            downsample(&without_grazing(cleaned, config.max_incidence_rad), &config.view_voxel)?
+            let smoothing = config.registration_smoothing_m;
+            let (cleaned, m) =
+                clean_on_grid(&cloud, &grid, config.pixel_window, &config.outliers, &config.normals, smoothing)?;
+            let thinned = |c| downsample(&without_grazing(c, config.max_incidence_rad), &config.view_voxel);
+            measured = m.map(thinned).transpose()?;
+            thinned(cleaned)?
         }
         None => {
             let cloud = downsample(&cloud, &config.view_voxel)?;
@@ -90,7 +110,10 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
             without_grazing(cleaned, config.max_incidence_rad)
         }
     };
-    non_empty(PreparedView { seed, cloud, pixels: None }, "outlier removal, normal estimation and the incidence filter")
+    non_empty(
+        PreparedView { seed, cloud, pixels: None, measured },
+        "outlier removal, normal estimation and the incidence filter",
+    )
 }
 
 /// The points seen at more than `max_incidence_rad` between their normal and the ray to the
@@ -139,7 +162,7 @@ fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<Prepar
             normals[i] = if facing { n_camera } else { -n_camera };
         }
     }
-    Ok(PreparedView { seed: view.seed, cloud, pixels: view.pixels })
+    Ok(PreparedView { cloud, ..view })
 }
 
 /// Loads and prepares every view; failures are kept per view as messages. Returns the focus point
@@ -156,7 +179,8 @@ pub(crate) fn prepare(
         .map(|i| {
             let loaded = load_view(scan, i, rays.as_deref()).map_err(|e| e.to_string())?;
             let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
-            let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels };
+            let view =
+                PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
             non_empty(view, "the depth range crop").map_err(|e| e.to_string())
         })
         .collect();
@@ -178,7 +202,7 @@ pub(crate) fn prepare(
                 (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
             let pixels = v.pixels.map(|px| keep.iter().map(|&i| px[i]).collect());
             non_empty(
-                PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels },
+                PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels, measured: None },
                 "the region-of-interest crop",
             )
         });
