@@ -183,9 +183,10 @@ pub struct FuseConfig {
     /// Register the depth views on copies of their points moved along their rays onto the plane
     /// of their pixel-window neighbours (the normals' neighbourhoods, with their normal), each by
     /// at most this many metres; the model is still made of the measured points. `None` (the
-    /// default) registers the measured points. On 8 simulated scans, 0.005: registration 25-45 %
-    /// faster (fewer joint steps), model RMSE better on 6 of 8 scans but box seed 4 0.61 -> 1.16 mm
-    /// (BENCHMARKS.md 42). Views given as clouds are not smoothed.
+    /// default) registers the measured points. On 8 simulated scans, 0.005: registration 24 %
+    /// faster (a third of the joint steps), model RMSE better on 6 of 8 scans (mean 0.709 -> 0.687
+    /// mm) but box seed 2 0.64 -> 0.74 mm and box seed 4 0.61 -> 1.16 mm (BENCHMARKS.md 42). Views
+    /// given as clouds are not smoothed.
     pub registration_smoothing_m: Option<f64>,
     /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
     /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
