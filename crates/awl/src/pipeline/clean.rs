@@ -14,7 +14,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::cloud::PointCloud;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::filter::outlier::{SorParams, statistical_from_knn};
 use crate::normals::{NormalParams, covariance, orient_towards, plane_of};
 use crate::organized::{self, Cleaned, PixelGrid};
@@ -27,7 +27,8 @@ use crate::spatial::{KdIndex, KnnTable, Neighbor};
 /// and the measured ones beside them: `(smoothed, Some(measured))`; else `(measured, None)`.
 ///
 /// # Errors
-/// Bad parameters, a non-finite cloud, a grid that is not the cloud's.
+/// Bad parameters, a non-finite cloud, a grid that is not the cloud's. (`smoothing_m` is checked
+/// once for the whole fuse, by [`FuseConfig::check`](super::config::FuseConfig::check).)
 pub(crate) fn clean_on_grid(
     cloud: &PointCloud,
     grid: &PixelGrid,
@@ -36,9 +37,6 @@ pub(crate) fn clean_on_grid(
     params: &NormalParams,
     smoothing_m: Option<f64>,
 ) -> Result<(PointCloud, Option<PointCloud>)> {
-    if let Some(m) = smoothing_m.filter(|m| !m.is_finite() || *m < 0.0) {
-        return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
-    }
     let Cleaned { sor, normals, centroids } = organized::clean(cloud, grid, half, sor, params)?;
     let measured = cloud.select(&sor.kept);
     let Some(max_shift) = smoothing_m else {

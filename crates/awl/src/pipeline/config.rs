@@ -186,7 +186,7 @@ pub struct FuseConfig {
     /// default) registers the measured points. On 8 simulated scans, 0.005: registration 24 %
     /// faster (a third of the joint steps), model RMSE better on 6 of 8 scans (mean 0.709 -> 0.687
     /// mm) but box seed 2 0.64 -> 0.74 mm and box seed 4 0.61 -> 1.16 mm (BENCHMARKS.md 42). Views
-    /// given as clouds are not smoothed.
+    /// given as clouds (or cleaned with `pixel_window = 0`) are not smoothed.
     pub registration_smoothing_m: Option<f64>,
     /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
     /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
@@ -222,6 +222,17 @@ impl Default for FuseConfig {
 }
 
 impl FuseConfig {
+    /// Checks the parameters no stage checks on its own (the others are checked by their stage).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the parameter.
+    pub fn check(&self) -> Result<()> {
+        if let Some(m) = self.registration_smoothing_m.filter(|m| !m.is_finite() || *m < 0.0) {
+            return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
+        }
+        Ok(())
+    }
+
     /// The config a partial document describes (e.g. a TOML file turned into a JSON value): each
     /// key it gives replaces the same key of [`FuseConfig::default`], tables merged key by key,
     /// lists and values replaced whole. So `[registration.icp]` with one key keeps the fuse's own ICP
@@ -324,5 +335,11 @@ mod tests {
             .expect_err("wrong type")
             .to_string();
         assert!(e.contains("fuse config"), "{e}");
+        for bad in [-0.001, f64::NAN, f64::INFINITY] {
+            let c = FuseConfig { registration_smoothing_m: Some(bad), ..FuseConfig::default() };
+            let e = c.check().expect_err("bad smoothing").to_string();
+            assert!(e.contains("registration_smoothing_m"), "{e}");
+        }
+        assert!(FuseConfig { registration_smoothing_m: Some(0.005), ..FuseConfig::default() }.check().is_ok());
     }
 }

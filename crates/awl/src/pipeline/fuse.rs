@@ -69,6 +69,7 @@ fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) ->
 /// [`Error::Invalid`] when no view is usable or nothing is left of the model; any stage's error.
 /// Views that cannot be used are not errors: they are skipped and reported.
 pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<FuseOutput> {
+    config.check()?;
     let start = Instant::now();
     let mut stages = Vec::new();
     let mut warnings = Vec::new();
