@@ -290,12 +290,7 @@ mod scan {
                 Isometry3::from_parts(Translation3::from(axis() * 0.002), turn) * pose
             })
             .collect();
-        let reg = &config.registration;
-        let params = IcpParams {
-            levels: reg.joint_levels.clone(),
-            max_source_points: reg.joint_source_points,
-            ..reg.icp.clone()
-        };
+        let params = config.registration.joint_params();
         let run = || {
             let mut poses = start.clone();
             let stats = refine_jointly(&clouds, &mut poses, 0, &params).expect("joint");

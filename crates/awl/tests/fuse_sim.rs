@@ -96,26 +96,26 @@ fn shell_realistic_three_seeds() {
 }
 
 #[test]
-fn registration_on_smoothed_views_takes_fewer_joint_steps_and_stays_accurate() {
-    let config = FuseConfig { registration_smoothing_m: Some(0.005), ..FuseConfig::default() };
+fn registration_on_smoothed_views_beats_registration_on_the_measured_points() {
+    // the default registers smoothed copies of the views with a fine joint threshold; before, it
+    // registered the measured points with the sequential ICP's threshold
+    let mut measured = FuseConfig { registration_smoothing_m: None, ..FuseConfig::default() };
+    measured.registration.joint_convergence_translation_m = 1e-4;
+    measured.registration.joint_convergence_rotation_rad = 1e-4;
     let sim = simulate(&SimParams { seed: 1, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
-    let smoothed = fuse_simulation_with(sim, None, &config);
+    let on_measured = fuse_simulation_with(sim, None, &measured);
     let default = seed1(SceneKind::Box);
-    let steps = |f: &Fused| f.out.report.joint.iter().map(|j| j.iterations).sum::<usize>();
-    let (o, d) = (judge(&smoothed), judge(default));
+    let (d, m) = (judge(default), judge(&on_measured));
     println!(
-        "box seed 1, smoothed views: {:.3} mm, {:.1} % complete, {} joint steps (default {:.3} mm, {:.1} %, {})",
-        o.rmse_mm,
-        o.completeness_5mm * 100.0,
-        steps(&smoothed),
+        "box seed 1: {:.3} mm, {:.1} % complete (registered on the measured points: {:.3} mm, {:.1} %)",
         d.rmse_mm,
         d.completeness_5mm * 100.0,
-        steps(default)
+        m.rmse_mm,
+        m.completeness_5mm * 100.0,
     );
-    // measured: 0.63 mm and 15 steps against 0.71 mm and 44 (BENCHMARKS.md 42)
-    assert!(o.rmse_mm <= d.rmse_mm + 0.1 && o.rmse_mm <= 1.0, "{:.3} vs {:.3} mm", o.rmse_mm, d.rmse_mm);
-    assert!(o.completeness_5mm >= d.completeness_5mm - 0.01, "{} vs {}", o.completeness_5mm, d.completeness_5mm);
-    assert!(2 * steps(&smoothed) <= steps(default), "{} vs {} joint steps", steps(&smoothed), steps(default));
+    // measured: 0.60 mm against 0.71 mm (BENCHMARKS.md 43)
+    assert!(d.rmse_mm <= m.rmse_mm - 0.05 && d.rmse_mm <= 0.8, "{:.3} vs {:.3} mm", d.rmse_mm, m.rmse_mm);
+    assert!(d.completeness_5mm >= m.completeness_5mm - 0.01, "{} vs {}", d.completeness_5mm, m.completeness_5mm);
 }
 
 #[test]

@@ -80,13 +80,22 @@ pub struct RegistrationConfig {
     /// ICP levels of the refinement rounds (small corrections). Default: 4 mm / 12 mm, 2 mm / 5 mm.
     pub refine_levels: Vec<IcpLevel>,
     /// Levels of the joint refinement of the anchor and the accepted views after the sequential
-    /// pass (every overlapping pair at once, see `registration::joint`; it uses the ICP's kernel,
-    /// gates and convergence thresholds); empty: none. Default 4 mm / 12 mm, 2 mm / 5 mm. On
+    /// pass (every overlapping pair at once, see `registration::joint`; it uses the ICP's kernel
+    /// and its own convergence thresholds below); empty: none. Default 4 mm / 12 mm, 2 mm / 5 mm. On
     /// awl's box scans (seeds 1-4) it took the model's RMSE from 1.21 / 0.66 / 0.61 / 2.71 mm to
     /// 1.14 / 0.80 / 0.78 / 0.99 mm: the sequential pass drifts on some scans (BENCHMARKS.md, 14).
     pub joint_levels: Vec<IcpLevel>,
     /// Source points per view and joint level at most. Default 2500.
     pub joint_source_points: usize,
+    /// A joint level converges when no view's step moves more than this, metres. Default 3e-5,
+    /// under a third of the sequential ICP's: on views registered smoothed
+    /// (`registration_smoothing_m`) the joint's steps keep improving the model below 0.1 mm. On 8
+    /// simulated scans, 1e-4 / 5e-5 / 3e-5 gave a mean model RMSE of 0.687 / 0.641 / 0.599 mm
+    /// (box seed 4: 1.16 / 0.94 / 0.64 mm) for 16 / 16 / 20 s of registration in all
+    /// (BENCHMARKS.md 43).
+    pub joint_convergence_translation_m: f64,
+    /// ... nor rotates more than this, radians. Default 3e-5.
+    pub joint_convergence_rotation_rad: f64,
 }
 
 impl Default for RegistrationConfig {
@@ -106,6 +115,23 @@ impl Default for RegistrationConfig {
             refine_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
             joint_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
             joint_source_points: 2500,
+            joint_convergence_translation_m: 3e-5,
+            joint_convergence_rotation_rad: 3e-5,
+        }
+    }
+}
+
+impl RegistrationConfig {
+    /// The ICP parameters of the joint refinement: its levels, source points and thresholds, the
+    /// sequential ICP's kernel.
+    #[must_use]
+    pub fn joint_params(&self) -> IcpParams {
+        IcpParams {
+            levels: self.joint_levels.clone(),
+            max_source_points: self.joint_source_points,
+            convergence_translation_m: self.joint_convergence_translation_m,
+            convergence_rotation_rad: self.joint_convergence_rotation_rad,
+            ..self.icp.clone()
         }
     }
 }
@@ -182,11 +208,11 @@ pub struct FuseConfig {
     pub max_incidence_rad: Option<f64>,
     /// Register the depth views on copies of their points moved along their rays onto the plane
     /// of their pixel-window neighbours (the normals' neighbourhoods, with their normal), each by
-    /// at most this many metres; the model is still made of the measured points. `None` (the
-    /// default) registers the measured points. On 8 simulated scans, 0.005: registration 24 %
-    /// faster (a third of the joint steps), model RMSE better on 6 of 8 scans (mean 0.709 -> 0.687
-    /// mm) but box seed 2 0.64 -> 0.74 mm and box seed 4 0.61 -> 1.16 mm (BENCHMARKS.md 42). Views
-    /// given as clouds (or cleaned with `pixel_window = 0`) are not smoothed.
+    /// at most this many metres; the model is still made of the measured points. `None` registers
+    /// the measured points. Default 0.005: on 8 simulated scans, with the joint's threshold below,
+    /// model RMSE 0.709 -> 0.599 mm (mean; every scan better but box seed 4, 0.61 -> 0.64 mm) in
+    /// the same registration time (BENCHMARKS.md 42, 43). Views given as clouds (or cleaned with
+    /// `pixel_window = 0`) are not smoothed.
     pub registration_smoothing_m: Option<f64>,
     /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
     /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
@@ -211,7 +237,7 @@ impl Default for FuseConfig {
             normals: NormalParams::default(),
             pixel_window: 3,
             max_incidence_rad: Some(80f64.to_radians()),
-            registration_smoothing_m: None,
+            registration_smoothing_m: Some(0.005),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
             registration: RegistrationConfig::default(),
             merge_voxel: VoxelParams::default(),
@@ -229,6 +255,15 @@ impl FuseConfig {
     pub fn check(&self) -> Result<()> {
         if let Some(m) = self.registration_smoothing_m.filter(|m| !m.is_finite() || *m < 0.0) {
             return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
+        }
+        let r = &self.registration;
+        for (name, v) in [
+            ("registration.joint_convergence_translation_m", r.joint_convergence_translation_m),
+            ("registration.joint_convergence_rotation_rad", r.joint_convergence_rotation_rad),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(Error::invalid(name, format!("{v} is not a finite threshold >= 0")));
+            }
         }
         Ok(())
     }
@@ -339,7 +374,12 @@ mod tests {
             let c = FuseConfig { registration_smoothing_m: Some(bad), ..FuseConfig::default() };
             let e = c.check().expect_err("bad smoothing").to_string();
             assert!(e.contains("registration_smoothing_m"), "{e}");
+            let mut c = FuseConfig::default();
+            c.registration.joint_convergence_rotation_rad = bad;
+            let e = c.check().expect_err("bad joint threshold").to_string();
+            assert!(e.contains("joint_convergence_rotation_rad"), "{e}");
         }
-        assert!(FuseConfig { registration_smoothing_m: Some(0.005), ..FuseConfig::default() }.check().is_ok());
+        assert!(FuseConfig { registration_smoothing_m: None, ..FuseConfig::default() }.check().is_ok());
+        assert!(FuseConfig::default().check().is_ok());
     }
 }

@@ -256,12 +256,7 @@ fn refine_joint(
     let clouds: Vec<&PointCloud> = members.iter().map(|m| &m.1.cloud).collect();
     let mut joint: Vec<Isometry3<f64>> = members.iter().map(|m| m.2).collect();
     let fixed = members.iter().position(|m| m.0 == anchor).unwrap_or(0);
-    let params = IcpParams {
-        levels: config.joint_levels.clone(),
-        max_source_points: config.joint_source_points,
-        ..config.icp.clone()
-    };
-    let stats = refine_jointly(&clouds, &mut joint, fixed, &params)?;
+    let stats = refine_jointly(&clouds, &mut joint, fixed, &config.joint_params())?;
     // A view the joint step moved farther than its first gate left the basin it started in:
     // keep the sequential poses.
     let gate = config.joint_levels[0].max_correspondence_m;
