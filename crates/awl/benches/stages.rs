@@ -202,8 +202,9 @@ macro_rules! input_group {
 input_group!(sim300k);
 input_group!(table_mug);
 
-/// View `i` of the bench scan with the pipeline's default per-view preparation (2 mm voxel, SOR,
-/// normals toward the camera; camera frame), and its recorded pose.
+/// View `i` of the bench scan prepared as the fuse prepares views given as clouds (2 mm voxel,
+/// SOR, normals toward the camera from a k-d tree; camera frame; not the depth views' pixel-grid
+/// cleaning and smoothed copies), and its recorded pose.
 fn prepared_view(scan: &awl::io::scan::Scan, i: usize, config: &FuseConfig) -> (Isometry3<f64>, PointCloud) {
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
     let v = load_view(scan, i, rays.as_deref()).expect("load");
