@@ -1,6 +1,7 @@
-//! `awl fuse` on damaged scans: a view with all-zero depth, a single-view scan, nothing left after the
-//! depth crop, a NaN pose. Clear messages; the pipeline goes on with the remaining views where that
-//! makes sense and says so in the report; nothing is written when it cannot go on.
+//! `awl fuse` on damaged scans and configs: a view with all-zero depth, a single-view scan, nothing
+//! left after the depth crop, a NaN pose, out-of-range config values. Clear messages; the pipeline
+//! goes on with the remaining views where that makes sense and says so in the report; nothing is
+//! written when it cannot go on.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -117,4 +118,33 @@ fn a_nan_pose_names_the_file_view_and_field() {
     let message = text(&fuse(&scan, &out_dir));
     assert!(message.contains("views[1].T_base_ee") && message.contains("rigid"), "{message}");
     assert!(!out_dir.exists(), "nothing is written");
+}
+
+#[test]
+fn bad_config_values_name_their_key_and_write_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    for (toml, key) in [
+        ("[registration.icp]\nconvergence_translation_m = nan\n", "registration.icp.convergence_translation_m"),
+        ("[registration]\njoint_convergence_rotation_rad = inf\n", "registration.joint_convergence_rotation_rad"),
+        ("[registration.icp]\nkernel_scale_ratio = -1.0\n", "registration.icp.kernel_scale_ratio"),
+        ("[registration.icp]\nmax_tangential_voxels = 0.0\n", "registration.icp.max_tangential_voxels"),
+    ] {
+        let config = dir.path().join("fuse.toml");
+        std::fs::write(&config, toml).expect("write config");
+        let out_dir = dir.path().join("out");
+        let out = awl(&[
+            "fuse",
+            scan.to_str().expect("utf-8"),
+            "-o",
+            out_dir.to_str().expect("utf-8"),
+            "--config",
+            config.to_str().expect("utf-8"),
+            "--quiet",
+        ]);
+        let message = text(&out);
+        assert!(!out.status.success(), "{toml}: {message}");
+        assert!(message.contains(key), "{toml}: the key is named: {message}");
+        assert!(!out_dir.exists(), "nothing is written");
+    }
 }

@@ -43,8 +43,23 @@ fn load_config(path: Option<&PathBuf>) -> anyhow::Result<FuseConfig> {
     // over the fuse's defaults (a partial table keeps the fuse's values, not its type's)
     let _: FuseConfig = toml::from_str(&text).with_context(invalid)?;
     let document: toml::Value = toml::from_str(&text).with_context(invalid)?;
+    if let Some((key, v)) = non_finite(&document, "") {
+        anyhow::bail!("{}: invalid fuse config: {key} = {v} is not a finite number", path.display());
+    }
     let document = serde_json::to_value(document).with_context(invalid)?;
     FuseConfig::with_overrides(&document).with_context(invalid)
+}
+
+/// The first number of `value` that is NaN or infinite (JSON, which the merge goes through, has
+/// neither), with its dotted key.
+fn non_finite(value: &toml::Value, key: &str) -> Option<(String, f64)> {
+    let child = |k: &str| if key.is_empty() { k.to_string() } else { format!("{key}.{k}") };
+    match value {
+        toml::Value::Float(v) if !v.is_finite() => Some((key.to_string(), *v)),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite(v, &child(k))),
+        toml::Value::Array(a) => a.iter().enumerate().find_map(|(i, v)| non_finite(v, &format!("{key}[{i}]"))),
+        _ => None,
+    }
 }
 
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as

@@ -257,6 +257,10 @@ impl FuseConfig {
             return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
         }
         let r = &self.registration;
+        r.icp.validate().map_err(|e| match e {
+            Error::Invalid { what, message } => Error::invalid(format!("registration.{what}"), message),
+            other => other,
+        })?;
         for (name, v) in [
             ("registration.joint_convergence_translation_m", r.joint_convergence_translation_m),
             ("registration.joint_convergence_rotation_rad", r.joint_convergence_rotation_rad),
@@ -378,7 +382,22 @@ mod tests {
             c.registration.joint_convergence_rotation_rad = bad;
             let e = c.check().expect_err("bad joint threshold").to_string();
             assert!(e.contains("joint_convergence_rotation_rad"), "{e}");
+            let mut c = FuseConfig::default();
+            c.registration.icp.convergence_translation_m = bad;
+            let e = c.check().expect_err("bad sequential threshold").to_string();
+            assert!(e.contains("registration.icp.convergence_translation_m"), "{e}");
+            let mut c = FuseConfig::default();
+            c.registration.icp.max_tangential_voxels = Some(bad);
+            let e = c.check().expect_err("bad tangential gate").to_string();
+            assert!(e.contains("registration.icp.max_tangential_voxels"), "{e}");
         }
+        let mut c = FuseConfig::default();
+        c.registration.icp.kernel_scale_ratio = 0.0;
+        let e = c.check().expect_err("zero kernel scale").to_string();
+        assert!(e.contains("registration.icp.kernel_scale_ratio"), "{e}");
+        c.registration.icp =
+            IcpParams { max_tangential_voxels: None, max_normal_angle_rad: None, ..IcpParams::default() };
+        assert!(c.check().is_ok(), "gates off are valid");
         assert!(FuseConfig { registration_smoothing_m: None, ..FuseConfig::default() }.check().is_ok());
         assert!(FuseConfig::default().check().is_ok());
     }

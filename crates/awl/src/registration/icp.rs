@@ -77,6 +77,32 @@ impl Default for IcpParams {
     }
 }
 
+impl IcpParams {
+    /// Checks the values that have no meaning out of range: the kernel scale, the gates and the
+    /// convergence thresholds (finite, the scale and the tangential gate positive, the rest at least
+    /// 0); a NaN threshold would never converge, a NaN gate would drop every correspondence.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field (`icp.<field>`).
+    pub fn validate(&self) -> Result<()> {
+        let positive: fn(f64) -> bool = |v| v.is_finite() && v > 0.0;
+        let at_least_zero: fn(f64) -> bool = |v| v.is_finite() && v >= 0.0;
+        let checks = [
+            ("kernel_scale_ratio", Some(self.kernel_scale_ratio), positive, "> 0"),
+            ("max_tangential_voxels", self.max_tangential_voxels, positive, "> 0"),
+            ("max_normal_angle_rad", self.max_normal_angle_rad, at_least_zero, ">= 0"),
+            ("convergence_translation_m", Some(self.convergence_translation_m), at_least_zero, ">= 0"),
+            ("convergence_rotation_rad", Some(self.convergence_rotation_rad), at_least_zero, ">= 0"),
+        ];
+        for (name, value, ok, range) in checks {
+            if let Some(v) = value.filter(|&v| !ok(v)) {
+                return Err(Error::invalid(format!("icp.{name}"), format!("{v} is not a finite number {range}")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// What happened at one level.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LevelStats {
@@ -130,6 +156,7 @@ pub(super) fn thin(cloud: Cow<'_, PointCloud>, max: usize) -> PointCloud {
 }
 
 fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result<()> {
+    params.validate()?;
     if params.levels.is_empty() {
         return Err(Error::invalid("ICP parameters", "no levels"));
     }
@@ -313,4 +340,38 @@ fn run<'a>(
         conditioning: conditioning(&s),
         levels,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn out_of_range_thresholds_and_gates_are_refused_by_name() {
+        assert!(IcpParams::default().validate().is_ok());
+        let gates_off = IcpParams { max_tangential_voxels: None, max_normal_angle_rad: None, ..IcpParams::default() };
+        assert!(gates_off.validate().is_ok());
+        let cloud = PointCloud {
+            points: (0..8).map(|i| Point3::new(i as f32 * 0.01, (i % 3) as f32 * 0.01, 0.0)).collect(),
+            normals: Some(vec![Vector3::z(); 8]),
+            colors: None,
+        };
+        type Set = fn(&mut IcpParams, f64);
+        let cases: [(&str, Set); 4] = [
+            ("icp.convergence_translation_m", |p, v| p.convergence_translation_m = v),
+            ("icp.convergence_rotation_rad", |p, v| p.convergence_rotation_rad = v),
+            ("icp.kernel_scale_ratio", |p, v| p.kernel_scale_ratio = v),
+            ("icp.max_tangential_voxels", |p, v| p.max_tangential_voxels = Some(v)),
+        ];
+        for (name, set) in cases {
+            for bad in [f64::NAN, f64::INFINITY, -1.0] {
+                let mut params = IcpParams::default();
+                set(&mut params, bad);
+                let e = register(&cloud, &cloud, &Isometry3::identity(), &params).expect_err(name).to_string();
+                assert!(e.contains(name), "{e}");
+            }
+        }
+        let params = IcpParams { max_normal_angle_rad: Some(f64::NAN), ..IcpParams::default() };
+        assert!(params.validate().expect_err("NaN angle").to_string().contains("icp.max_normal_angle_rad"));
+    }
 }

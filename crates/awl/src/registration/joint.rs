@@ -54,8 +54,8 @@ struct ViewLevel<'a> {
 /// view and level.
 ///
 /// # Errors
-/// [`Error::Invalid`] for fewer than two views, a view without normals, bad levels or `fixed`
-/// out of range.
+/// [`Error::Invalid`] for fewer than two views, a view without normals, bad levels or thresholds
+/// (see [`IcpParams::validate`]) or `fixed` out of range.
 pub fn refine_jointly(
     clouds: &[&PointCloud],
     poses: &mut [Isometry3<f64>],
@@ -68,6 +68,7 @@ pub fn refine_jointly(
     if let Some(i) = clouds.iter().position(|c| c.normals.as_ref().map(Vec::len) != Some(c.len())) {
         return Err(Error::invalid("joint refinement", format!("view {i} has no normals")));
     }
+    params.validate()?;
     if let Some(l) = params.levels.iter().find(|l| !(l.max_correspondence_m > 0.0) || !(l.voxel_m > 0.0)) {
         return Err(Error::invalid("joint refinement", format!("invalid level {l:?}")));
     }
