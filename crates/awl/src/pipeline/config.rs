@@ -253,23 +253,20 @@ impl FuseConfig {
     /// # Errors
     /// [`Error::Invalid`] naming the parameter.
     pub fn check(&self) -> Result<()> {
-        if let Some(m) = self.registration_smoothing_m.filter(|m| !m.is_finite() || *m < 0.0) {
-            return Err(Error::invalid("registration_smoothing_m", format!("{m} is not a finite distance >= 0")));
-        }
         let r = &self.registration;
+        for (name, value) in [
+            ("registration_smoothing_m", self.registration_smoothing_m),
+            ("registration.joint_convergence_translation_m", Some(r.joint_convergence_translation_m)),
+            ("registration.joint_convergence_rotation_rad", Some(r.joint_convergence_rotation_rad)),
+        ] {
+            if let Some(v) = value.filter(|v| !v.is_finite() || *v < 0.0) {
+                return Err(Error::invalid(name, format!("{v} is not a finite number >= 0")));
+            }
+        }
         r.icp.validate().map_err(|e| match e {
             Error::Invalid { what, message } => Error::invalid(format!("registration.{what}"), message),
             other => other,
-        })?;
-        for (name, v) in [
-            ("registration.joint_convergence_translation_m", r.joint_convergence_translation_m),
-            ("registration.joint_convergence_rotation_rad", r.joint_convergence_rotation_rad),
-        ] {
-            if !v.is_finite() || v < 0.0 {
-                return Err(Error::invalid(name, format!("{v} is not a finite threshold >= 0")));
-            }
-        }
-        Ok(())
+        })
     }
 
     /// The config a partial document describes (e.g. a TOML file turned into a JSON value): each
