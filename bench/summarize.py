@@ -110,6 +110,10 @@ def check_text(check, keys):
     return ""
 
 
+# the end-to-end rows: awl's default, awl --preset fast, the Open3D pipeline
+TOOLS = ("awl", "awl-fast", "open3d")
+
+
 def e2e(out):
     path = os.path.join(out, "e2e", "runs.tsv")
     if not os.path.exists(path):
@@ -123,8 +127,8 @@ def e2e(out):
              "|---|---|---|---|---|---|---|---|---|"]
     stage_t = {}
     for t in sorted({k[1] for k in by}, reverse=True):
-        walls = {tool: median([float(r["wall_s"]) for r in by.get((tool, t), [])]) for tool in ("awl", "open3d")}
-        for tool in ("awl", "open3d"):
+        walls = {tool: median([float(r["wall_s"]) for r in by.get((tool, t), [])]) for tool in TOOLS}
+        for tool in TOOLS:
             rs = by.get((tool, t), [])
             if not rs:
                 continue
@@ -141,7 +145,7 @@ def e2e(out):
                 acc = (f"{on * 1e3:.2f} mm ({al * 1e3:.1f} mm; {100 * off:.1f} % off)" if None not in (on, al, off)
                        else "—",
                        f"{100 * comp:.1f} %" if comp is not None else "—", str(s.get("model_points", "—")))
-            rat = ratio(walls["awl"], walls["open3d"]) if tool == "awl" else ""
+            rat = ratio(walls[tool], walls["open3d"]) if tool != "open3d" else ""
             lines.append(f"| {t} | {tool} | {len(rs)} | {fmt_s(walls[tool])} | {fmt_mb(peak)} | {rat} | "
                          f"{acc[0]} | {acc[1]} | {acc[2]} |")
             # per-stage seconds of each run
@@ -152,22 +156,19 @@ def e2e(out):
                     if os.path.exists(p):
                         for st in json.load(open(p))["stages"]:
                             stage_t.setdefault((tool, t, st["name"]), []).append(st["seconds"])
-                else:
+                elif tool == "open3d":
                     p = os.path.join(d, "timings.json")
                     if os.path.exists(p):
                         for name, sec in json.load(open(p))["stages_s"].items():
                             stage_t.setdefault((tool, t, name), []).append(sec)
+    lines.append("")
     for t in sorted({k[1] for k in by}, reverse=True):
-        if len(by.get(("awl", t), [])) and t != 2:
-            w2 = median([float(r["wall_s"]) for r in by.get(("awl", 2), [])])
-            w1 = median([float(r["wall_s"]) for r in by.get(("awl", t), [])])
-            if w1 and w2:
-                lines.append(f"\nawl fuse speed-up 1 -> 2 threads: {w1 / w2:.2f}x")
-        if len(by.get(("open3d", t), [])) and t != 2:
-            w2 = median([float(r["wall_s"]) for r in by.get(("open3d", 2), [])])
-            w1 = median([float(r["wall_s"]) for r in by.get(("open3d", t), [])])
-            if w1 and w2:
-                lines.append(f"open3d pipeline speed-up 1 -> 2 threads: {w1 / w2:.2f}x")
+        for tool in TOOLS:
+            if len(by.get((tool, t), [])) and t != 2:
+                w2 = median([float(r["wall_s"]) for r in by.get((tool, 2), [])])
+                w1 = median([float(r["wall_s"]) for r in by.get((tool, t), [])])
+                if w1 and w2:
+                    lines.append(f"{tool} speed-up 1 -> 2 threads: {w1 / w2:.2f}x")
     ident = os.path.join(out, "e2e", "identical.txt")
     if os.path.exists(ident):
         lines.append(open(ident).read().strip())

@@ -202,6 +202,9 @@ pub struct FuseConfig {
     /// box piercing trials equal within their spread (BENCHMARKS.md 20). 0: a k-d tree of the
     /// down-sampled view, as for views given as clouds.
     pub pixel_window: usize,
+    /// Use the pixels of every this-many-th row and column of a depth view only (1: all). The
+    /// `pixel_window` counts pixels of that coarser grid. Default 1; the `fast` preset takes 2.
+    pub pixel_step: usize,
     /// Drop points seen at more than this angle between their normal and the ray to the camera,
     /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
     /// noisiest. `None` keeps all. Default 80 degrees.
@@ -236,6 +239,7 @@ impl Default for FuseConfig {
             outliers: SorParams::default(),
             normals: NormalParams::default(),
             pixel_window: 3,
+            pixel_step: 1,
             max_incidence_rad: Some(80f64.to_radians()),
             registration_smoothing_m: Some(0.005),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
@@ -248,11 +252,39 @@ impl Default for FuseConfig {
 }
 
 impl FuseConfig {
+    /// The `fast` preset: a quick model at 1.5-2 mm instead of the defaults' 0.6 mm. Every second
+    /// pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model, two
+    /// sequential ICP levels (15 mm, 6 mm) and no joint refinement (BENCHMARKS.md 46).
+    #[must_use]
+    pub fn fast() -> Self {
+        let level =
+            |voxel_m, max_correspondence_m, max_iterations| IcpLevel { voxel_m, max_correspondence_m, max_iterations };
+        let default = Self::default();
+        Self {
+            pixel_step: 2,
+            pixel_window: 2,
+            view_voxel: VoxelParams { voxel_size_m: 0.005, ..default.view_voxel },
+            merge_voxel: VoxelParams { voxel_size_m: 0.004, ..default.merge_voxel },
+            registration: RegistrationConfig {
+                icp: IcpParams {
+                    levels: vec![level(0.015, 0.10, 30), level(0.006, 0.03, 30)],
+                    ..default.registration.icp.clone()
+                },
+                joint_levels: Vec::new(),
+                ..default.registration.clone()
+            },
+            ..default
+        }
+    }
+
     /// Checks the parameters no stage checks on its own (the others are checked by their stage).
     ///
     /// # Errors
     /// [`Error::Invalid`] naming the parameter.
     pub fn check(&self) -> Result<()> {
+        if self.pixel_step == 0 {
+            return Err(Error::invalid("pixel_step", "must be 1 or more"));
+        }
         let r = &self.registration;
         for (name, value) in [
             ("registration_smoothing_m", self.registration_smoothing_m),
@@ -278,8 +310,16 @@ impl FuseConfig {
     /// # Errors
     /// [`Error::Invalid`] naming the unknown key or the value of the wrong type.
     pub fn with_overrides(overrides: &serde_json::Value) -> Result<Self> {
+        Self::with_overrides_on(Self::default(), overrides)
+    }
+
+    /// [`FuseConfig::with_overrides`] over `base` (e.g. [`FuseConfig::fast`]) instead of the defaults.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the unknown key or the value of the wrong type.
+    pub fn with_overrides_on(base: Self, overrides: &serde_json::Value) -> Result<Self> {
         let mut merged =
-            serde_json::to_value(Self::default()).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
+            serde_json::to_value(base).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
         merge(&mut merged, overrides);
         serde_json::from_value(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
     }
@@ -397,5 +437,12 @@ mod tests {
         assert!(c.check().is_ok(), "gates off are valid");
         assert!(FuseConfig { registration_smoothing_m: None, ..FuseConfig::default() }.check().is_ok());
         assert!(FuseConfig::default().check().is_ok());
+        let e = FuseConfig { pixel_step: 0, ..FuseConfig::default() }.check().expect_err("step 0").to_string();
+        assert!(e.contains("pixel_step"), "{e}");
+        assert!(FuseConfig::fast().check().is_ok());
+        // a partial document over the fast preset keeps the preset's other keys
+        let c = FuseConfig::with_overrides_on(FuseConfig::fast(), &json!({"merge_voxel": {"voxel_size_m": 0.003}}))
+            .expect("parse");
+        assert_eq!(c, FuseConfig { merge_voxel: VoxelParams { voxel_size_m: 0.003 }, ..FuseConfig::fast() });
     }
 }

@@ -116,6 +116,21 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
     )
 }
 
+/// The points of the pixels on every `step`-th row and column of a `width`-pixel-wide image, with
+/// their pixels on that coarser grid (`width.div_ceil(step)` wide).
+fn every_nth_pixel(cloud: PointCloud, pixels: &[u32], width: usize, step: usize) -> (PointCloud, Vec<u32>) {
+    let coarse_width = width.div_ceil(step);
+    let (mut keep, mut coarse) = (Vec::new(), Vec::new());
+    for (i, &p) in pixels.iter().enumerate() {
+        let (u, v) = (p as usize % width, p as usize / width);
+        if u % step == 0 && v % step == 0 {
+            keep.push(i);
+            coarse.push(((v / step) * coarse_width + u / step) as u32);
+        }
+    }
+    (cloud.select(&keep), coarse)
+}
+
 /// The points seen at more than `max_incidence_rad` between their normal and the ray to the
 /// camera (at the origin) dropped.
 fn without_grazing(cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
@@ -174,13 +189,20 @@ pub(crate) fn prepare(
 ) -> (Views, Option<Point3<f64>>) {
     let start = Instant::now();
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
+    let (width, height) = scan.camera.map_or((0, 0), |c| (c.intrinsics.width as usize, c.intrinsics.height as usize));
     let mut views: Views = (0..scan.views.len())
         .into_par_iter()
         .map(|i| {
             let loaded = load_view(scan, i, rays.as_deref()).map_err(|e| e.to_string())?;
-            let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
-            let view =
-                PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
+            let (cloud, pixels) = match loaded.pixels {
+                Some(pixels) if config.pixel_step > 1 => {
+                    let (cloud, pixels) = every_nth_pixel(loaded.cloud_camera, &pixels, width, config.pixel_step);
+                    (cloud, Some(pixels))
+                }
+                pixels => (loaded.cloud_camera, pixels),
+            };
+            let pixels = pixels.filter(|_| config.pixel_window > 0);
+            let view = PreparedView { seed: loaded.world_from_camera, cloud, pixels, measured: None };
             non_empty(view, "the depth range crop").map_err(|e| e.to_string())
         })
         .collect();
@@ -207,10 +229,36 @@ pub(crate) fn prepare(
             )
         });
     }
-    let (width, height) = scan.camera.map_or((0, 0), |c| (c.intrinsics.width as usize, c.intrinsics.height as usize));
+    let step = config.pixel_step.max(1);
+    let (width, height) = (width.div_ceil(step), height.div_ceil(step));
     stage("voxel + outliers + normals", &mut views, reports, |v| cleaned_and_oriented(v, config, width, height));
     if let Some(params) = &config.snap_plane {
         stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
     }
     (views, focus)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_nth_pixel_keeps_the_pixels_of_every_nth_row_and_column_on_the_coarser_grid() {
+        // a 5 x 3 image with a point on every pixel but (1, 0) and (4, 2)
+        let (width, height) = (5usize, 3usize);
+        let pixels: Vec<u32> = (0..(width * height) as u32).filter(|&p| p != 1 && p != 14).collect();
+        let points = pixels.iter().map(|&p| Point3::new(p as f32, 0.0, 1.0)).collect();
+        let cloud = PointCloud { points, normals: None, colors: None };
+        let (kept, coarse) = every_nth_pixel(cloud, &pixels, width, 2);
+        // (u, v) in {0, 2, 4} x {0, 2}: pixels 0, 2, 4, 10, 12 (14 has no point) on a 3-wide grid
+        let kept_pixels: Vec<f32> = kept.points.iter().map(|p| p.x).collect();
+        assert_eq!(kept_pixels, vec![0.0, 2.0, 4.0, 10.0, 12.0]);
+        assert_eq!(coarse, vec![0, 1, 2, 3, 4]);
+        let grid = PixelGrid::new(width.div_ceil(2), height.div_ceil(2), coarse).expect("grid");
+        assert_eq!(grid.len(), 5);
+        // step 1 keeps everything as it is
+        let cloud = PointCloud { points: vec![Point3::origin(); pixels.len()], normals: None, colors: None };
+        let (kept, same) = every_nth_pixel(cloud, &pixels, width, 1);
+        assert_eq!((kept.len(), same), (pixels.len(), pixels.clone()));
+    }
 }

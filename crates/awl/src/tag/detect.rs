@@ -155,6 +155,28 @@ impl AprilTagDetector {
     /// # Errors
     /// [`Error::Invalid`] for out-of-range parameters or when the C detector cannot be created.
     pub fn new(params: &DetectorParams) -> Result<Self> {
+        params.check()?;
+        let family = apriltag::Family::tag_36h11();
+        let mut detector = apriltag::Detector::builder()
+            .add_family_bits(family, params.max_hamming as usize)
+            .build()
+            .map_err(|e| Error::invalid("AprilTag detector", e.to_string()))?;
+        detector.set_decimation(params.quad_decimate);
+        detector.set_sigma(params.quad_sigma);
+        detector.set_refine_edges(params.refine_edges);
+        detector.set_shapening(params.decode_sharpening);
+        detector.set_thread_number(params.threads);
+        Ok(Self { detector })
+    }
+}
+
+impl DetectorParams {
+    /// Checks the parameters without building a detector (its decode table takes ~15 ms).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the out-of-range parameter.
+    pub fn check(&self) -> Result<()> {
+        let params = self;
         if !(params.quad_decimate >= 1.0 && params.quad_decimate <= 8.0) {
             return Err(Error::invalid("quad_decimate", format!("must be 1 to 8, got {}", params.quad_decimate)));
         }
@@ -173,17 +195,7 @@ impl AprilTagDetector {
         if params.threads == 0 {
             return Err(Error::invalid("threads", "must be at least 1"));
         }
-        let family = apriltag::Family::tag_36h11();
-        let mut detector = apriltag::Detector::builder()
-            .add_family_bits(family, params.max_hamming as usize)
-            .build()
-            .map_err(|e| Error::invalid("AprilTag detector", e.to_string()))?;
-        detector.set_decimation(params.quad_decimate);
-        detector.set_sigma(params.quad_sigma);
-        detector.set_refine_edges(params.refine_edges);
-        detector.set_shapening(params.decode_sharpening);
-        detector.set_thread_number(params.threads);
-        Ok(Self { detector })
+        Ok(())
     }
 }
 

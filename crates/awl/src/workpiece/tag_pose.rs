@@ -194,27 +194,27 @@ pub fn estimate_from_views(
 /// A detection and the camera centre of its view (world frame).
 type Found = (ViewTagDetection, Point3<f64>);
 
-/// `detect(detector, k)` for `k` in `0..n`, in parallel with one detector per worker: the
-/// detections in order of `k`, and the indices of the views searched (`detect` gives a view's
-/// index and detections, or `None` for a view it could not search).
+/// `detect(detector, k)` for `k` in `0..n`, in parallel: one contiguous run of `k` and one
+/// detector per worker thread (a detector's decode table costs as much as a view's detection, and
+/// rayon's `map_init` builds one per job, not per thread). The detections in order of `k`, and
+/// the indices of the views searched (`detect` gives a view's index and detections, or `None` for
+/// a view it could not search).
 fn detect_each(
     n: usize,
     params: &DetectorParams,
     detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Option<(usize, Vec<Found>)>> + Sync + Send,
 ) -> Result<(Vec<Found>, Vec<usize>)> {
-    AprilTagDetector::new(params)?; // the parameters checked once, up front
-    let per_view = (0..n)
+    params.check()?;
+    let run = n.div_ceil(rayon::current_num_threads().max(1)).max(1);
+    let runs: Vec<Vec<Option<(usize, Vec<Found>)>>> = (0..n.div_ceil(run))
         .into_par_iter()
-        .map_init(
-            || AprilTagDetector::new(params),
-            |detector, k| {
-                let detector = detector.as_mut().map_err(|e| Error::invalid("tag detector", e.to_string()))?;
-                detect(detector, k)
-            },
-        )
-        .collect::<Result<Vec<_>>>()?;
+        .map(|r| {
+            let mut detector = AprilTagDetector::new(params)?;
+            (r * run..n.min((r + 1) * run)).map(|k| detect(&mut detector, k)).collect()
+        })
+        .collect::<Result<_>>()?;
     let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
-    for (index, found) in per_view.into_iter().flatten() {
+    for (index, found) in runs.into_iter().flatten().flatten() {
         views_checked.push(index);
         detections.extend(found);
     }
