@@ -148,3 +148,40 @@ fn bad_config_values_name_their_key_and_write_nothing() {
         assert!(!out_dir.exists(), "nothing is written");
     }
 }
+
+#[test]
+fn a_json_config_goes_over_the_preset_and_null_turns_a_stage_off() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    let config = dir.path().join("fuse.json");
+    std::fs::write(&config, r#"{"smoothing": null, "merge_voxel": {"voxel_size_m": 0.005}}"#).expect("write config");
+    let run = |name: &str, extra: &[&str]| {
+        let out_dir = dir.path().join(name);
+        let mut args = vec!["fuse", scan.to_str().expect("utf-8"), "-o", out_dir.to_str().expect("utf-8")];
+        args.extend_from_slice(&["--quiet", "--json"]);
+        args.extend_from_slice(extra);
+        (awl(&args), out_dir)
+    };
+    let (out, _) = run("fast", &["--preset", "fast", "--config", config.to_str().expect("utf-8")]);
+    let r = report(&out);
+    let c = &r["config"];
+    assert_eq!(c["pixel_step"], 2, "the preset's own keys stay");
+    assert_eq!(c["registration"]["joint_levels"], serde_json::json!([]));
+    assert_eq!(c["merge_voxel"]["voxel_size_m"], 0.005, "the file's key");
+    assert!(c["smoothing"].is_null(), "null turned MLS off");
+    let stages: Vec<&str> = r["stages"].as_array().expect("stages").iter().filter_map(|s| s["name"].as_str()).collect();
+    assert!(!stages.contains(&"mls"), "{stages:?}");
+    // the same file over the default preset keeps the default's keys
+    let r = report(&run("accurate", &["--config", config.to_str().expect("utf-8")]).0);
+    assert_eq!(r["config"]["pixel_step"], 1);
+    assert_eq!(r["config"]["registration"]["joint_levels"].as_array().map(Vec::len), Some(2));
+    // a broken JSON file or an unknown key names the file and writes nothing
+    for (bad, needle) in [(r#"{"smoothing": "#, "fuse.json"), (r#"{"smoothnig": null}"#, "smoothnig")] {
+        std::fs::write(&config, bad).expect("write config");
+        let (out, out_dir) = run("bad", &["--config", config.to_str().expect("utf-8")]);
+        let message = text(&out);
+        assert!(!out.status.success(), "{bad}: {message}");
+        assert!(message.contains(needle), "{bad}: {message}");
+        assert!(!out_dir.exists(), "nothing is written");
+    }
+}
