@@ -387,7 +387,7 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
     write_atomic(&path, text.as_bytes())
 }
 
-fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
+pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
     if (width, height) != (w, h) {
         return Err(Error::format(path, format!("image is {width}x{height}, scan.json camera says {w}x{h}")));

@@ -9,8 +9,9 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
-use crate::io::scan::{Scan, TagSpec, ViewData, load_view};
-use crate::tag::{AprilTagDetector, DetectorParams, TagDetector, estimate_tag_pose, score_depth};
+use crate::io::image::read_color_png;
+use crate::io::scan::{Scan, TagSpec, ViewData, check_size, load_view};
+use crate::tag::{AprilTagDetector, DetectorParams, TagDetection, TagDetector, estimate_tag_pose, score_depth};
 use crate::workpiece::mean::{MeanParams, robust_mean};
 
 /// The only tag family the detector decodes.
@@ -128,9 +129,22 @@ fn detect_view(
     tag: &TagSpec,
     params: &TagEstimateParams,
 ) -> Result<Vec<Found>> {
+    let found = detector.detect_color(view.image)?;
+    Ok(pose_detections(found, view, intrinsics, tag, params))
+}
+
+/// The detections of one view as [`ViewTagDetection`]s: the declared tag posed (its planar
+/// ambiguity resolved by the view's depth points) and checked, the others listed with the reason.
+fn pose_detections(
+    found: Vec<TagDetection>,
+    view: &TagView<'_>,
+    intrinsics: &Intrinsics,
+    tag: &TagSpec,
+    params: &TagEstimateParams,
+) -> Vec<Found> {
     let camera = Point3::from(view.world_from_camera.translation.vector);
     let mut out = Vec::new();
-    for d in detector.detect_color(view.image)? {
+    for d in found {
         let mut det = ViewTagDetection {
             view: view.index,
             id: d.id,
@@ -170,7 +184,7 @@ fn detect_view(
         }
         out.push((det, camera));
     }
-    Ok(out)
+    out
 }
 
 /// Estimates `T_world_tag` from in-memory views (see the module docs). Views that do not see the
@@ -287,14 +301,20 @@ pub fn estimate_world_from_tag(
     }
     let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
     let rays = camera.intrinsics.ray_table();
-    // each view loads its images in its worker
+    // each view decodes its color image in its worker; its depth only when the declared tag is
+    // in it (for the planar ambiguity): most views do not see the tag
     let (detections, views_checked) = detect_each(world_from_camera.len(), &params.detector, |detector, index| {
-        let has_color = matches!(&scan.views[index].data, ViewData::Depth { color: Some(_), .. });
-        let Some(world_from_camera) = world_from_camera[index].filter(|_| has_color) else { return Ok(None) };
-        let loaded = load_view(scan, index, Some(&rays))?;
-        let Some(image) = loaded.color.as_ref() else { return Ok(None) };
-        let view = TagView { index, image, points_camera: &loaded.cloud_camera.points, world_from_camera };
-        Ok(Some((index, detect_view(detector, &view, &camera.intrinsics, tag, params)?)))
+        let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
+        let Some(world_from_camera) = world_from_camera[index] else { return Ok(None) };
+        let color_path = scan.dir.join(color);
+        let image = read_color_png(&color_path)?;
+        check_size(&color_path, camera, image.width, image.height)?;
+        let found = detector.detect_color(&image)?;
+        let loaded =
+            if found.iter().any(|d| d.id == tag.id) { Some(load_view(scan, index, Some(&rays))?) } else { None };
+        let points_camera = loaded.as_ref().map_or(&[][..], |l| &l.cloud_camera.points[..]);
+        let view = TagView { index, image: &image, points_camera, world_from_camera };
+        Ok(Some((index, pose_detections(found, &view, &camera.intrinsics, tag, params))))
     })?;
     finish(detections, views_checked, tag, params)
 }
