@@ -264,8 +264,8 @@ impl FuseConfig {
         Self {
             pixel_step: 2,
             pixel_window: 2,
-            view_voxel: VoxelParams { voxel_size_m: 0.005, ..default.view_voxel },
-            merge_voxel: VoxelParams { voxel_size_m: 0.004, ..default.merge_voxel },
+            view_voxel: VoxelParams { voxel_size_m: 0.005 },
+            merge_voxel: VoxelParams { voxel_size_m: 0.004 },
             registration: RegistrationConfig {
                 icp: IcpParams {
                     levels: vec![level(0.015, 0.10, 30), level(0.006, 0.03, 30)],

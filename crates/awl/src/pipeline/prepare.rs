@@ -1,9 +1,9 @@
-//! Per-view stages: load (depth -> points, range crop), region of interest, then voxel
-//! down-sampling, statistical outlier removal and normals oriented toward the view's camera (one
-//! stage): a depth view's outliers and normals come from its pixel grid (`organized`, `pixel_window`
-//! > 0, the default), before the voxel grid (which averages the normals); a cloud view (or any view
-//! with `pixel_window = 0`) is down-sampled first, then cleaned with one k-NN pass (`clean`). Each
-//! stage runs over all views in parallel.
+//! Per-view stages: load (depth -> points, range crop; every `pixel_step`-th row and column),
+//! region of interest, then voxel down-sampling, statistical outlier removal and normals oriented
+//! toward the view's camera (one stage): a depth view's outliers and normals come from its pixel
+//! grid (`organized`, a positive `pixel_window`, the default), before the voxel grid (which averages
+//! the normals); a cloud view (or any view with `pixel_window = 0`) is down-sampled first, then
+//! cleaned with one k-NN pass (`clean`). Each stage runs over all views in parallel.
 
 use std::time::Instant;
 

@@ -208,6 +208,9 @@ pub fn estimate_from_views(
 /// A detection and the camera centre of its view (world frame).
 type Found = (ViewTagDetection, Point3<f64>);
 
+/// A view searched (its index and what was found in it), or `None` for a view not searched.
+type Searched = Option<(usize, Vec<Found>)>;
+
 /// `detect(detector, k)` for `k` in `0..n`, in parallel: one contiguous run of `k` and one
 /// detector per worker thread (a detector's decode table costs as much as a view's detection, and
 /// rayon's `map_init` builds one per job, not per thread). The detections in order of `k`, and
@@ -216,11 +219,11 @@ type Found = (ViewTagDetection, Point3<f64>);
 fn detect_each(
     n: usize,
     params: &DetectorParams,
-    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Option<(usize, Vec<Found>)>> + Sync + Send,
+    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Searched> + Sync + Send,
 ) -> Result<(Vec<Found>, Vec<usize>)> {
     params.check()?;
     let run = n.div_ceil(rayon::current_num_threads().max(1)).max(1);
-    let runs: Vec<Vec<Option<(usize, Vec<Found>)>>> = (0..n.div_ceil(run))
+    let runs: Vec<Vec<Searched>> = (0..n.div_ceil(run))
         .into_par_iter()
         .map(|r| {
             let mut detector = AprilTagDetector::new(params)?;
