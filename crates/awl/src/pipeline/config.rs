@@ -253,27 +253,21 @@ impl Default for FuseConfig {
 
 impl FuseConfig {
     /// The `fast` preset: a quick model at 1.5-2 mm instead of the defaults' 0.6 mm. Every second
-    /// pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model, two
-    /// sequential ICP levels (15 mm, 6 mm), no joint refinement, and MLS onto planes (on the 4 mm
-    /// model, quadrics fit the noise: 0.06 mm worse on 8 scans) (BENCHMARKS.md 46).
+    /// pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model, the
+    /// default's two coarse sequential ICP levels (15 mm, 6 mm), no joint refinement, and MLS onto
+    /// planes (on the 4 mm model, quadrics fit the noise: 0.06 mm worse on 8 scans) (BENCHMARKS.md 46).
     #[must_use]
     pub fn fast() -> Self {
-        let level =
-            |voxel_m, max_correspondence_m, max_iterations| IcpLevel { voxel_m, max_correspondence_m, max_iterations };
         let default = Self::default();
+        let mut registration = default.registration.clone();
+        registration.icp.levels.truncate(2);
+        registration.joint_levels.clear();
         Self {
             pixel_step: 2,
             pixel_window: 2,
             view_voxel: VoxelParams { voxel_size_m: 0.005 },
             merge_voxel: VoxelParams { voxel_size_m: 0.004 },
-            registration: RegistrationConfig {
-                icp: IcpParams {
-                    levels: vec![level(0.015, 0.10, 30), level(0.006, 0.03, 30)],
-                    ..default.registration.icp.clone()
-                },
-                joint_levels: Vec::new(),
-                ..default.registration.clone()
-            },
+            registration,
             smoothing: default.smoothing.map(|mls| MlsParams { polynomial: false, ..mls }),
             ..default
         }
