@@ -136,22 +136,41 @@ pub fn depth_to_cloud_with_pixels(
     camera: &DepthCamera,
     rays: &[[f32; 2]],
 ) -> (PointCloud, Vec<u32>) {
-    let mut points = Vec::new();
-    let mut pixels = Vec::new();
+    depth_to_cloud_every_nth(depth, color, camera, rays, 1)
+}
+
+/// Like [`depth_to_cloud_with_pixels`] on the pixels of every `step`-th row and column only (from
+/// the first), each point's pixel numbered on that coarser grid (`width.div_ceil(step)` wide).
+/// `step` 0 is taken as 1.
+pub fn depth_to_cloud_every_nth(
+    depth: &DepthImage,
+    color: Option<&ColorImage>,
+    camera: &DepthCamera,
+    rays: &[[f32; 2]],
+    step: usize,
+) -> (PointCloud, Vec<u32>) {
+    let step = step.max(1);
+    let (width, height) = (depth.width as usize, depth.height as usize);
+    let coarse_width = width.div_ceil(step);
+    let (mut points, mut pixels) = (Vec::new(), Vec::new());
     let mut colors = color.map(|_| Vec::new());
-    for (i, (&raw, ray)) in depth.data.iter().zip(rays).enumerate() {
-        if raw == 0 {
-            continue;
-        }
-        let z = f64::from(raw) * camera.depth_scale;
-        if z < camera.depth_min_m || z > camera.depth_max_m {
-            continue;
-        }
-        let z = z as f32;
-        points.push(Point3::new(ray[0] * z, ray[1] * z, z));
-        pixels.push(i as u32);
-        if let (Some(colors), Some(image)) = (colors.as_mut(), color) {
-            colors.push(image.data[i]);
+    for v in (0..height).step_by(step) {
+        for u in (0..width).step_by(step) {
+            let i = v * width + u;
+            let (Some(&raw), Some(ray)) = (depth.data.get(i), rays.get(i)) else { continue };
+            if raw == 0 {
+                continue;
+            }
+            let z = f64::from(raw) * camera.depth_scale;
+            if z < camera.depth_min_m || z > camera.depth_max_m {
+                continue;
+            }
+            let z = z as f32;
+            points.push(Point3::new(ray[0] * z, ray[1] * z, z));
+            pixels.push(((v / step) * coarse_width + u / step) as u32);
+            if let (Some(colors), Some(image)) = (colors.as_mut(), color) {
+                colors.push(image.data.get(i).copied().unwrap_or_default());
+            }
         }
     }
     (PointCloud { points, normals: None, colors }, pixels)
@@ -203,5 +222,28 @@ mod tests {
         let p = cloud.points[0];
         assert!((p.z - 1.0).abs() < 1e-6);
         assert!((f64::from(p.x) - (1.0 - 320.5) / 615.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn every_nth_pixel_keeps_the_pixels_of_every_nth_row_and_column_on_the_coarser_grid() {
+        // a 5 x 3 image with depth on every pixel but (1, 0) and (4, 2)
+        let intrinsics = Intrinsics { width: 5, height: 3, ..d435([0.0; 5]) };
+        let cam = DepthCamera { intrinsics, depth_scale: 0.001, depth_min_m: 0.2, depth_max_m: 3.0 };
+        let data: Vec<u16> = (0..15).map(|p| if p == 1 || p == 14 { 0 } else { 1000 + p }).collect();
+        let depth = DepthImage { width: 5, height: 3, data };
+        let color = ColorImage { width: 5, height: 3, data: (0..15).map(|p| [p, 0, 0]).collect() };
+        let rays = intrinsics.ray_table();
+        let (cloud, coarse) = depth_to_cloud_every_nth(&depth, Some(&color), &cam, &rays, 2);
+        // (u, v) in {0, 2, 4} x {0, 2}: pixels 0, 2, 4, 10, 12 (14 has no depth), on a 3-wide grid
+        let depth_mm: Vec<u16> = cloud.points.iter().map(|p| (p.z * 1000.0).round() as u16).collect();
+        assert_eq!(depth_mm, vec![1000, 1002, 1004, 1010, 1012]);
+        assert_eq!(cloud.colors.expect("colors").iter().map(|c| c[0]).collect::<Vec<_>>(), vec![0, 2, 4, 10, 12]);
+        assert_eq!(coarse, vec![0, 1, 2, 3, 4]);
+        // step 1 is the full back-projection
+        let (all, pixels) = depth_to_cloud_every_nth(&depth, None, &cam, &rays, 1);
+        let (full, full_pixels) = depth_to_cloud_with_pixels(&depth, None, &cam, &rays);
+        let full_len = full.len();
+        assert_eq!((all.points, pixels), (full.points, full_pixels));
+        assert_eq!(full_len, 13);
     }
 }

@@ -16,7 +16,7 @@ use awl::io::workpiece::read_workpiece;
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
 use awl::workpiece::{
     RefineParams, SurfaceModel, TagEstimate, TagEstimateParams, TagView, TargetParams, TargetSpec, estimate_from_views,
-    refine_on_model,
+    refine_on_model, search_tags,
 };
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -122,6 +122,33 @@ fn tag_from_true_poses_reference_shell() {
 fn tag_from_true_poses_own_box_and_shell() {
     check_true_pose_tag(&own(SceneKind::Box), 1.0, 0.5);
     check_true_pose_tag(&own(SceneKind::Shell), 2.5, 1.5);
+}
+
+/// The search `awl fuse` runs beside the fuse (the scan's files, no poses), placed afterwards with
+/// the poses, against the in-memory path with the poses known up front.
+#[test]
+fn the_tag_search_before_the_poses_gives_the_estimate_of_the_views_with_their_poses() {
+    let case = reference("box_seed1");
+    let tag = case.scan.tag.clone().expect("tag");
+    let params = TagEstimateParams::default();
+    let (in_memory, _) = tag_from_true_poses(&case, &tag);
+    let search = search_tags(&case.scan, &params).expect("search").expect("the scan declares a tag");
+    let poses: Vec<Option<Isometry3<f64>>> = case.truth.views.iter().map(|v| Some(v.world_from_camera)).collect();
+    let placed = search.place(&poses, &params).expect("place");
+    assert_eq!(placed.detections, in_memory.detections);
+    assert_eq!(placed.views_checked, in_memory.views_checked);
+    let (a, b) = (placed.world_from_tag.expect("tag"), in_memory.world_from_tag.expect("tag"));
+    assert!((a.translation.vector - b.translation.vector).norm() < 1e-12 && a.rotation.angle_to(&b.rotation) < 1e-12);
+    // a view without a registered pose is not checked, and its detection is not used
+    let seeing = placed.detections.iter().find(|d| d.used).expect("a used detection").view;
+    let mut fewer = poses.clone();
+    fewer[seeing] = None;
+    let without = search.place(&fewer, &params).expect("place");
+    assert!(!without.views_checked.contains(&seeing) && without.detections.iter().all(|d| d.view != seeing));
+    assert_eq!(without.views_checked.len(), placed.views_checked.len() - 1);
+    // poses for fewer views than were searched: an error naming the poses
+    let err = search.place(&poses[..seeing], &params).expect_err("too few poses").to_string();
+    assert!(err.contains("view poses") && err.contains(&format!("view {seeing}")), "{err}");
 }
 
 #[test]

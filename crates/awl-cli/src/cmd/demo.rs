@@ -84,7 +84,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     ));
 
     let scan = read_scan(&scan_dir)?;
-    let fused = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    let (fused, tags) = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
     say(format!(
         "[2/3] fused {} views into {} points in {:.2} s",
         fused.report.views.len(),
@@ -106,7 +106,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
-    let (fuse_html, workpiece) = super::fuse::write_outputs(&fuse_dir, &scan, &fused, Some(rmse_m))?;
+    let (fuse_html, workpiece) = super::fuse::write_outputs(&fuse_dir, tags.as_ref(), &fused, Some(rmse_m))?;
     for w in super::fuse::workpiece_warnings(workpiece.as_ref()) {
         say(format!("      warning: {w}"));
     }

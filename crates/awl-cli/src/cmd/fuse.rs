@@ -9,7 +9,7 @@ use awl::io::scan::{Scan, read_scan};
 use awl::io::workpiece::write_workpiece;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::report_html::{PageParams, fuse_page};
-use awl::workpiece::{WORKPIECE_FILE, Workpiece, WorkpieceParams, workpiece_from_fuse};
+use awl::workpiece::{TagSearch, WORKPIECE_FILE, Workpiece, WorkpieceParams, search_tags, workpiece_from_search};
 
 use super::common::{set_threads, stage_bar, write_json};
 
@@ -84,18 +84,19 @@ fn non_finite(value: &toml::Value, key: &str) -> Option<(String, f64)> {
 
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as
 /// `renders/*.png`) and, when the scan declares a tag, `workpiece.json` into `out_dir`, creating
-/// it; `rmse_m` (an RMSE against ground truth, when the caller has one) goes on the page.
-/// Returns the page's path and the workpiece (see [`workpiece_warnings`]).
+/// it; `tags` is the scan's tag search ([`fuse_with_progress`]); `rmse_m` (an RMSE against ground
+/// truth, when the caller has one) goes on the page. Returns the page's path and the workpiece
+/// (see [`workpiece_warnings`]).
 pub fn write_outputs(
     out_dir: &Path,
-    scan: &Scan,
+    tags: Option<&TagSearch>,
     out: &FuseOutput,
     rmse_m: Option<f64>,
 ) -> anyhow::Result<(PathBuf, Option<Workpiece>)> {
     // the tag on the model, for `awl pierce`, and the report page (side by side): both made before
     // anything is written
     let (workpiece, page) = rayon::join(
-        || workpiece_from_fuse(scan, out, "model.ply", &WorkpieceParams::default()),
+        || workpiece_from_search(tags, out, "model.ply", &WorkpieceParams::default()),
         || fuse_page(&out.report, &out.model, rmse_m, &PageParams::default()),
     );
     let (workpiece, page) = (workpiece?, page?);
@@ -113,17 +114,24 @@ pub fn workpiece_warnings(workpiece: Option<&Workpiece>) -> Vec<String> {
     workpiece.map_or_else(Vec::new, |wp| wp.warnings.iter().map(|w| format!("workpiece: {w}")).collect())
 }
 
-/// Runs the pipeline with a stage progress bar on stderr (hidden when `quiet`).
-pub fn fuse_with_progress(scan: &Scan, config: &FuseConfig, quiet: bool) -> anyhow::Result<FuseOutput> {
+/// Runs the pipeline with a stage progress bar on stderr (hidden when `quiet`) and, beside it (it
+/// needs no registered pose; the cores the fuse leaves idle do most of it), the search of the
+/// scan's color views for its tag (`None` when the scan declares none).
+pub fn fuse_with_progress(
+    scan: &Scan,
+    config: &FuseConfig,
+    quiet: bool,
+) -> anyhow::Result<(FuseOutput, Option<TagSearch>)> {
     let bar = stage_bar(quiet);
     let progress = |stage: &str, done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         bar.set_message(stage.to_string());
     };
-    let out = fuse(scan, config, &progress)?;
+    let (out, tags) =
+        rayon::join(|| fuse(scan, config, &progress), || search_tags(scan, &WorkpieceParams::default().tag));
     bar.finish_and_clear();
-    Ok(out)
+    Ok((out?, tags.context("searching the scan's color views for its tag")?))
 }
 
 /// Runs `awl fuse`.
@@ -135,9 +143,9 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     };
     let config = load_config(args.config.as_ref(), base)?;
     let scan = read_scan(&args.scan)?;
-    let out = fuse_with_progress(&scan, &config, args.quiet)?;
+    let (out, tags) = fuse_with_progress(&scan, &config, args.quiet)?;
     // the folder is made only once there is something to put in it
-    let (_, workpiece) = write_outputs(&args.output, &scan, &out, None)?;
+    let (_, workpiece) = write_outputs(&args.output, tags.as_ref(), &out, None)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out.report)?);
     } else if !args.quiet {

@@ -96,8 +96,8 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     let scan_dir = args.output.join("scan");
     write_simulation(&scan_dir, &sim, args.force)?;
     let scan = read_scan(&scan_dir)?;
-    let fused = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
-    let (_, workpiece) = super::fuse::write_outputs(&args.output.join("fuse"), &scan, &fused, None)?;
+    let (fused, tags) = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    let (_, workpiece) = super::fuse::write_outputs(&args.output.join("fuse"), tags.as_ref(), &fused, None)?;
     let workpiece = workpiece.context("the simulated scan declares no tag")?;
     let wp = prepare_workpiece(scene, &workpiece, &sim.truth, &sim.cad, &fused.model, args.target.as_deref())
         .context("the workpiece on the model")?;

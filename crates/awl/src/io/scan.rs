@@ -10,7 +10,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud_with_pixels};
+use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud_every_nth};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
@@ -401,6 +401,16 @@ pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: 
 /// Any error of the image or point-file readers (naming the file); [`Error::Format`] when an image
 /// size does not match the camera.
 pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result<LoadedView> {
+    load_view_every_nth(scan, index, rays, 1)
+}
+
+/// [`load_view`] keeping a depth view's pixels on every `step`-th row and column only, each
+/// point's pixel numbered on that coarser grid (`width.div_ceil(step)` wide; see
+/// [`crate::camera::depth_to_cloud_every_nth`]). A point-file view is loaded whole.
+///
+/// # Errors
+/// As [`load_view`].
+pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>, step: usize) -> Result<LoadedView> {
     let world_from_camera = scan.world_from_camera(index)?;
     let view = &scan.views[index];
     match &view.data {
@@ -427,7 +437,7 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
                     &owned
                 }
             };
-            let (cloud_camera, pixels) = depth_to_cloud_with_pixels(&depth_image, color.as_ref(), camera, rays);
+            let (cloud_camera, pixels) = depth_to_cloud_every_nth(&depth_image, color.as_ref(), camera, rays, step);
             Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
         }
         ViewData::Points { points } => {

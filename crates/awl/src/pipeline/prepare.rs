@@ -17,7 +17,7 @@ use crate::cloud::PointCloud;
 use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
-use crate::io::scan::{Scan, load_view};
+use crate::io::scan::{Scan, load_view_every_nth};
 use crate::organized::PixelGrid;
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
@@ -116,21 +116,6 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
     )
 }
 
-/// The points of the pixels on every `step`-th row and column of a `width`-pixel-wide image, with
-/// their pixels on that coarser grid (`width.div_ceil(step)` wide).
-fn every_nth_pixel(cloud: PointCloud, pixels: &[u32], width: usize, step: usize) -> (PointCloud, Vec<u32>) {
-    let coarse_width = width.div_ceil(step);
-    let (mut keep, mut coarse) = (Vec::new(), Vec::new());
-    for (i, &p) in pixels.iter().enumerate() {
-        let (u, v) = (p as usize % width, p as usize / width);
-        if u % step == 0 && v % step == 0 {
-            keep.push(i);
-            coarse.push(((v / step) * coarse_width + u / step) as u32);
-        }
-    }
-    (cloud.select(&keep), coarse)
-}
-
 /// The points seen at more than `max_incidence_rad` between their normal and the ray to the
 /// camera (at the origin) dropped.
 fn without_grazing(cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
@@ -193,16 +178,10 @@ pub(crate) fn prepare(
     let mut views: Views = (0..scan.views.len())
         .into_par_iter()
         .map(|i| {
-            let loaded = load_view(scan, i, rays.as_deref()).map_err(|e| e.to_string())?;
-            let (cloud, pixels) = match loaded.pixels {
-                Some(pixels) if config.pixel_step > 1 => {
-                    let (cloud, pixels) = every_nth_pixel(loaded.cloud_camera, &pixels, width, config.pixel_step);
-                    (cloud, Some(pixels))
-                }
-                pixels => (loaded.cloud_camera, pixels),
-            };
-            let pixels = pixels.filter(|_| config.pixel_window > 0);
-            let view = PreparedView { seed: loaded.world_from_camera, cloud, pixels, measured: None };
+            let loaded = load_view_every_nth(scan, i, rays.as_deref(), config.pixel_step).map_err(|e| e.to_string())?;
+            let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
+            let view =
+                PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
             non_empty(view, "the depth range crop").map_err(|e| e.to_string())
         })
         .collect();
@@ -236,29 +215,4 @@ pub(crate) fn prepare(
         stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
     }
     (views, focus)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn every_nth_pixel_keeps_the_pixels_of_every_nth_row_and_column_on_the_coarser_grid() {
-        // a 5 x 3 image with a point on every pixel but (1, 0) and (4, 2)
-        let (width, height) = (5usize, 3usize);
-        let pixels: Vec<u32> = (0..(width * height) as u32).filter(|&p| p != 1 && p != 14).collect();
-        let points = pixels.iter().map(|&p| Point3::new(p as f32, 0.0, 1.0)).collect();
-        let cloud = PointCloud { points, normals: None, colors: None };
-        let (kept, coarse) = every_nth_pixel(cloud, &pixels, width, 2);
-        // (u, v) in {0, 2, 4} x {0, 2}: pixels 0, 2, 4, 10, 12 (14 has no point) on a 3-wide grid
-        let kept_pixels: Vec<f32> = kept.points.iter().map(|p| p.x).collect();
-        assert_eq!(kept_pixels, vec![0.0, 2.0, 4.0, 10.0, 12.0]);
-        assert_eq!(coarse, vec![0, 1, 2, 3, 4]);
-        let grid = PixelGrid::new(width.div_ceil(2), height.div_ceil(2), coarse).expect("grid");
-        assert_eq!(grid.len(), 5);
-        // step 1 keeps everything as it is
-        let cloud = PointCloud { points: vec![Point3::origin(); pixels.len()], normals: None, colors: None };
-        let (kept, same) = every_nth_pixel(cloud, &pixels, width, 1);
-        assert_eq!((kept.len(), same), (pixels.len(), pixels.clone()));
-    }
 }

@@ -1,6 +1,8 @@
 //! The page of `awl fuse`: summary, renders of the model, the interactive view, per-view
 //! registration (correction plots and table) and ICP convergence per level.
 
+use rayon::prelude::*;
+
 use super::page::{Block, KeyValue, Page, Picture, Section, Table};
 use super::rendered::{PageParams, RenderedPage};
 use super::viewer::ViewerCloud;
@@ -173,9 +175,14 @@ pub fn fuse_page(
         if render.spacing_m.is_none() {
             render.spacing_m = Some(estimate_spacing(&model.points)?).filter(|s| *s > 0.0);
         }
+        // the views side by side (each a raster and a PNG encoding)
+        let pngs: Vec<Vec<u8>> = params
+            .views
+            .par_iter()
+            .map(|view| png_bytes(&render_cloud(model, *view, &render)?))
+            .collect::<Result<_>>()?;
         let mut pictures = Vec::new();
-        for view in &params.views {
-            let png = png_bytes(&render_cloud(model, *view, &render)?)?;
+        for (view, png) in params.views.iter().zip(pngs) {
             pictures.push(Picture { caption: view.name().into(), png: png.clone() });
             renders.push((format!("{}.png", view.name()), png));
         }

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::io::scan::{Scan, TagSpec};
 use crate::pipeline::FuseOutput;
 use crate::workpiece::refine::{RefineParams, Refinement, refine_on_model};
-use crate::workpiece::tag_pose::{TagEstimateParams, ViewTagDetection, estimate_world_from_tag};
+use crate::workpiece::tag_pose::{TagEstimateParams, TagSearch, ViewTagDetection, search_tags};
 
 /// The format string of `workpiece.json`.
 pub const WORKPIECE_FORMAT: &str = "awl-workpiece/1";
@@ -108,9 +108,24 @@ pub fn workpiece_from_fuse(
     model_file: &str,
     params: &WorkpieceParams,
 ) -> Result<Option<Workpiece>> {
-    let Some(tag) = scan.tag.clone() else { return Ok(None) };
+    workpiece_from_search(search_tags(scan, &params.tag)?.as_ref(), out, model_file, params)
+}
+
+/// [`workpiece_from_fuse`] from the scan's tag search, run beforehand (e.g. beside the fuse: it
+/// needs no registered pose); `None` when there is no search (the scan declares no tag).
+///
+/// # Errors
+/// [`Error::Invalid`] when the search has a view `out.poses` does not.
+pub fn workpiece_from_search(
+    search: Option<&TagSearch>,
+    out: &FuseOutput,
+    model_file: &str,
+    params: &WorkpieceParams,
+) -> Result<Option<Workpiece>> {
+    let Some(search) = search else { return Ok(None) };
+    let tag = search.tag.clone();
+    let estimate = search.place(&out.poses, &params.tag)?;
     let model: &PointCloud = &out.model;
-    let estimate = estimate_world_from_tag(scan, &out.poses, &params.tag)?;
     let mut warnings = estimate.warnings;
     let mut world_from_tag = estimate.world_from_tag;
     let mut refinement = None;

@@ -20,11 +20,15 @@ pub mod target_spec;
 pub mod targets;
 
 pub use face::FaceParams;
-pub use file::{FloorPlane, WORKPIECE_FILE, WORKPIECE_FORMAT, Workpiece, WorkpieceParams, workpiece_from_fuse};
+pub use file::{
+    FloorPlane, WORKPIECE_FILE, WORKPIECE_FORMAT, Workpiece, WorkpieceParams, workpiece_from_fuse,
+    workpiece_from_search,
+};
 pub use mean::{MeanParams, PoseMean, robust_mean};
 pub use refine::{RefineParams, Refinement, refine_on_model};
 pub use tag_pose::{
-    Sighting, TagEstimate, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views, estimate_world_from_tag,
+    Sighting, TagEstimate, TagEstimateParams, TagSearch, TagView, ViewTagDetection, estimate_from_views,
+    estimate_world_from_tag, search_tags,
 };
 pub use target_spec::{TargetSpec, parse_targets};
 pub use targets::{SurfaceModel, SurfaceTarget, TargetParams};

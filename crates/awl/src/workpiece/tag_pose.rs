@@ -121,6 +121,15 @@ fn shortest_side_px(c: &[[f64; 2]; 4]) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
+/// A detection posed in its view's camera frame, checked, not yet placed in the world.
+#[derive(Debug, Clone, PartialEq)]
+struct Posed {
+    /// The detection (`world_from_tag` None until [`place`]).
+    detection: ViewTagDetection,
+    /// The chosen pose solution (None when no pose was estimated).
+    camera_from_tag: Option<Isometry3<f64>>,
+}
+
 /// Detects and poses the tags of one view (every id; only the declared one gets a pose).
 fn detect_view(
     detector: &mut AprilTagDetector,
@@ -130,23 +139,23 @@ fn detect_view(
     params: &TagEstimateParams,
 ) -> Result<Vec<Found>> {
     let found = detector.detect_color(view.image)?;
-    Ok(pose_detections(found, view, intrinsics, tag, params))
+    Ok(place(pose_detections(found, view.index, view.points_camera, intrinsics, tag, params), &view.world_from_camera))
 }
 
-/// The detections of one view as [`ViewTagDetection`]s: the declared tag posed (its planar
+/// The detections of view `index` posed in its camera frame: the declared tag posed (its planar
 /// ambiguity resolved by the view's depth points) and checked, the others listed with the reason.
 fn pose_detections(
     found: Vec<TagDetection>,
-    view: &TagView<'_>,
+    index: usize,
+    points_camera: &[Point3<f32>],
     intrinsics: &Intrinsics,
     tag: &TagSpec,
     params: &TagEstimateParams,
-) -> Vec<Found> {
-    let camera = Point3::from(view.world_from_camera.translation.vector);
+) -> Vec<Posed> {
     let mut out = Vec::new();
     for d in found {
         let mut det = ViewTagDetection {
-            view: view.index,
+            view: index,
             id: d.id,
             corners_px: d.corners_px,
             rmse_px: f64::NAN,
@@ -157,7 +166,7 @@ fn pose_detections(
         };
         if d.id != tag.id {
             det.reason = format!("tag id {} is not the declared id {}", d.id, tag.id);
-            out.push((det, camera));
+            out.push(Posed { detection: det, camera_from_tag: None });
             continue;
         }
         let side = shortest_side_px(&d.corners_px);
@@ -165,16 +174,15 @@ fn pose_detections(
             Ok(p) => p,
             Err(e) => {
                 det.reason = format!("no pose: {e}");
-                out.push((det, camera));
+                out.push(Posed { detection: det, camera_from_tag: None });
                 continue;
             }
         };
-        if score_depth(&pose, &d.corners_px, intrinsics, view.points_camera).prefers_second() {
+        if score_depth(&pose, &d.corners_px, intrinsics, points_camera).prefers_second() {
             pose = pose.swapped();
             det.flipped_by_depth = true;
         }
         det.rmse_px = pose.best.rmse_px;
-        det.world_from_tag = Some(view.world_from_camera * pose.best.camera_from_tag);
         if side < params.min_side_px {
             det.reason = format!("tag too small in the image ({side:.1} px < {} px)", params.min_side_px);
         } else if det.rmse_px > params.max_rmse_px {
@@ -182,9 +190,22 @@ fn pose_detections(
         } else {
             det.used = true;
         }
-        out.push((det, camera));
+        out.push(Posed { detection: det, camera_from_tag: Some(pose.best.camera_from_tag) });
     }
     out
+}
+
+/// A view's posed detections placed in the world by its registered pose, each with the camera
+/// centre.
+fn place(posed: Vec<Posed>, world_from_camera: &Isometry3<f64>) -> Vec<Found> {
+    let camera = Point3::from(world_from_camera.translation.vector);
+    posed
+        .into_iter()
+        .map(|p| {
+            let world_from_tag = p.camera_from_tag.map(|t| world_from_camera * t);
+            (ViewTagDetection { world_from_tag, ..p.detection }, camera)
+        })
+        .collect()
 }
 
 /// Estimates `T_world_tag` from in-memory views (see the module docs). Views that do not see the
@@ -199,43 +220,40 @@ pub fn estimate_from_views(
     params: &TagEstimateParams,
 ) -> Result<TagEstimate> {
     check_tag_spec(tag)?;
-    let (detections, views_checked) = detect_each(views.len(), &params.detector, |detector, k| {
+    let searched = detect_each(views.len(), &params.detector, rayon::current_num_threads(), |detector, k| {
         Ok(Some((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?)))
     })?;
-    finish(detections, views_checked, tag, params)
+    let views_checked = searched.iter().map(|(index, _)| *index).collect();
+    finish(searched.into_iter().flat_map(|(_, found)| found).collect(), views_checked, tag, params)
 }
 
 /// A detection and the camera centre of its view (world frame).
 type Found = (ViewTagDetection, Point3<f64>);
 
 /// A view searched (its index and what was found in it), or `None` for a view not searched.
-type Searched = Option<(usize, Vec<Found>)>;
+type Searched<T> = Option<(usize, Vec<T>)>;
 
-/// `detect(detector, k)` for `k` in `0..n`, in parallel: one contiguous run of `k` and one
-/// detector per worker thread (a detector's decode table costs as much as a view's detection, and
-/// rayon's `map_init` builds one per job, not per thread). The detections in order of `k`, and
-/// the indices of the views searched (`detect` gives a view's index and detections, or `None` for
-/// a view it could not search).
-fn detect_each(
+/// `detect(detector, k)` for `k` in `0..n`, in parallel on up to `detectors` detectors, each
+/// taking one contiguous run of `k` (a detector's decode table costs as much CPU as a view's
+/// detection, and 22 MB; rayon's `map_init` builds one per job, not per thread). The views
+/// searched in order of `k`, each with its index and what was found (`detect` gives them, or
+/// `None` for a view it could not search).
+fn detect_each<T: Send>(
     n: usize,
     params: &DetectorParams,
-    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Searched> + Sync + Send,
-) -> Result<(Vec<Found>, Vec<usize>)> {
+    detectors: usize,
+    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Searched<T>> + Sync + Send,
+) -> Result<Vec<(usize, Vec<T>)>> {
     params.check()?;
-    let run = n.div_ceil(rayon::current_num_threads().max(1)).max(1);
-    let runs: Vec<Vec<Searched>> = (0..n.div_ceil(run))
+    let run = n.div_ceil(detectors.max(1)).max(1);
+    let runs: Vec<Vec<Searched<T>>> = (0..n.div_ceil(run))
         .into_par_iter()
         .map(|r| {
             let mut detector = AprilTagDetector::new(params)?;
             (r * run..n.min((r + 1) * run)).map(|k| detect(&mut detector, k)).collect()
         })
         .collect::<Result<_>>()?;
-    let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
-    for (index, found) in runs.into_iter().flatten().flatten() {
-        views_checked.push(index);
-        detections.extend(found);
-    }
-    Ok((detections, views_checked))
+    Ok(runs.into_iter().flatten().flatten().collect())
 }
 
 fn finish(
@@ -283,8 +301,74 @@ fn finish(
     Ok(TagEstimate { world_from_tag, views_checked, detections, sightings, warnings })
 }
 
+/// The declared tag searched for in every color view of a scan and posed in each view's camera
+/// frame: needs no registered pose, so it can run beside the fuse; [`TagSearch::place`] then maps
+/// it to the world with the fuse's poses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TagSearch {
+    /// The tag searched for.
+    pub tag: TagSpec,
+    /// Each view searched (those with a color image): its index and what was found in it.
+    views: Vec<(usize, Vec<Posed>)>,
+}
+
+/// Searches the color views of `scan` for its declared tag (see [`TagSearch`]): `None` when the
+/// scan declares no tag.
+///
+/// # Errors
+/// [`Error::Invalid`] for an unsupported tag spec, a scan without a camera, or when the detector
+/// cannot run; any error of loading a view.
+pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<TagSearch>> {
+    let Some(tag) = scan.tag.as_ref() else { return Ok(None) };
+    check_tag_spec(tag)?;
+    let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
+    let rays = camera.intrinsics.ray_table();
+    // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
+    // leaves idle, and a second detector would cost its 22 MB decode table at the fuse's peak.
+    // Each view's depth is decoded only when the declared tag is in its color image (for the
+    // planar ambiguity): most views do not see the tag
+    let views = detect_each(scan.views.len(), &params.detector, 1, |detector, index| {
+        let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
+        let color_path = scan.dir.join(color);
+        let image = read_color_png(&color_path)?;
+        check_size(&color_path, camera, image.width, image.height)?;
+        let found = detector.detect_color(&image)?;
+        let loaded =
+            if found.iter().any(|d| d.id == tag.id) { Some(load_view(scan, index, Some(&rays))?) } else { None };
+        let points_camera = loaded.as_ref().map_or(&[][..], |l| &l.cloud_camera.points[..]);
+        Ok(Some((index, pose_detections(found, index, points_camera, &camera.intrinsics, tag, params))))
+    })?;
+    Ok(Some(TagSearch { tag: tag.clone(), views }))
+}
+
+impl TagSearch {
+    /// `T_world_tag` from the views searched that have a registered pose (`world_from_camera[i]`,
+    /// e.g. [`crate::pipeline::FuseOutput::poses`], one entry per view of the scan).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when a searched view's index has no entry in `world_from_camera`.
+    pub fn place(
+        &self,
+        world_from_camera: &[Option<Isometry3<f64>>],
+        params: &TagEstimateParams,
+    ) -> Result<TagEstimate> {
+        let (mut detections, mut views_checked) = (Vec::new(), Vec::new());
+        for (index, posed) in &self.views {
+            let pose = world_from_camera.get(*index).ok_or_else(|| {
+                Error::invalid("view poses", format!("no pose for view {index} ({} poses)", world_from_camera.len()))
+            })?;
+            if let Some(pose) = pose {
+                views_checked.push(*index);
+                detections.extend(place(posed.clone(), pose));
+            }
+        }
+        finish(detections, views_checked, &self.tag, params)
+    }
+}
+
 /// Estimates `T_world_tag` from the views of `scan` that have a color image and a registered pose
-/// (`world_from_camera[i]`, e.g. [`crate::pipeline::FuseOutput::poses`]); loads each view.
+/// (`world_from_camera[i]`, e.g. [`crate::pipeline::FuseOutput::poses`]): [`search_tags`], then
+/// [`TagSearch::place`].
 ///
 /// # Errors
 /// [`Error::Invalid`] when the scan declares no tag or an unsupported one, or `world_from_camera`
@@ -294,30 +378,13 @@ pub fn estimate_world_from_tag(
     world_from_camera: &[Option<Isometry3<f64>>],
     params: &TagEstimateParams,
 ) -> Result<TagEstimate> {
-    let tag = scan.tag.as_ref().ok_or_else(|| Error::invalid("scan.json tag", "the scan declares no tag"))?;
-    check_tag_spec(tag)?;
     if world_from_camera.len() != scan.views.len() {
         return Err(Error::invalid(
             "view poses",
             format!("{} poses for {} views", world_from_camera.len(), scan.views.len()),
         ));
     }
-    let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
-    let rays = camera.intrinsics.ray_table();
-    // each view decodes its color image in its worker; its depth only when the declared tag is
-    // in it (for the planar ambiguity): most views do not see the tag
-    let (detections, views_checked) = detect_each(world_from_camera.len(), &params.detector, |detector, index| {
-        let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
-        let Some(world_from_camera) = world_from_camera[index] else { return Ok(None) };
-        let color_path = scan.dir.join(color);
-        let image = read_color_png(&color_path)?;
-        check_size(&color_path, camera, image.width, image.height)?;
-        let found = detector.detect_color(&image)?;
-        let loaded =
-            if found.iter().any(|d| d.id == tag.id) { Some(load_view(scan, index, Some(&rays))?) } else { None };
-        let points_camera = loaded.as_ref().map_or(&[][..], |l| &l.cloud_camera.points[..]);
-        let view = TagView { index, image: &image, points_camera, world_from_camera };
-        Ok(Some((index, pose_detections(found, &view, &camera.intrinsics, tag, params))))
-    })?;
-    finish(detections, views_checked, tag, params)
+    let search =
+        search_tags(scan, params)?.ok_or_else(|| Error::invalid("scan.json tag", "the scan declares no tag"))?;
+    search.place(world_from_camera, params)
 }
