@@ -235,7 +235,7 @@ type Searched<T> = Option<(usize, Vec<T>)>;
 
 /// `detect(detector, k)` for `k` in `0..n`, in parallel on up to `detectors` detectors, each
 /// taking one contiguous run of `k` (a detector's decode table costs as much CPU as a view's
-/// detection, and 22 MB; rayon's `map_init` builds one per job, not per thread). The views
+/// detection; rayon's `map_init` builds one per job, not per thread). The views
 /// searched in order of `k`, each with its index and what was found (`detect` gives them, or
 /// `None` for a view it could not search).
 fn detect_each<T: Send>(
@@ -324,7 +324,8 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
     let rays = camera.intrinsics.ray_table();
     // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
-    // leaves idle, and a second detector would cost its 22 MB decode table at the fuse's peak.
+    // leaves idle, and a second detector would add its decode table and image buffers (~8 MB)
+    // to the fuse's peak.
     // Each view's depth is decoded only when the declared tag is in its color image (for the
     // planar ambiguity): most views do not see the tag
     let views = detect_each(scan.views.len(), &params.detector, 1, |detector, index| {
