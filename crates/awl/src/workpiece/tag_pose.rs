@@ -322,7 +322,8 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     let Some(tag) = scan.tag.as_ref() else { return Ok(None) };
     check_tag_spec(tag)?;
     let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
-    let rays = camera.intrinsics.ray_table();
+    // the ray table only once a view needs its depth (most scans: the first view that sees the tag)
+    let rays = std::sync::OnceLock::new();
     // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
     // leaves idle, and a second detector would add its decode table and image buffers (~8 MB)
     // to the fuse's peak.
@@ -334,8 +335,11 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
         let image = read_color_png(&color_path)?;
         check_size(&color_path, camera, image.width, image.height)?;
         let found = detector.detect_color(&image)?;
-        let loaded =
-            if found.iter().any(|d| d.id == tag.id) { Some(load_view(scan, index, Some(&rays))?) } else { None };
+        let loaded = if found.iter().any(|d| d.id == tag.id) {
+            Some(load_view(scan, index, Some(rays.get_or_init(|| camera.intrinsics.ray_table())))?)
+        } else {
+            None
+        };
         let points_camera = loaded.as_ref().map_or(&[][..], |l| &l.cloud_camera.points[..]);
         Ok(Some((index, pose_detections(found, index, points_camera, &camera.intrinsics, tag, params))))
     })?;
