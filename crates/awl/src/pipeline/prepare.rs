@@ -3,7 +3,7 @@
 //! toward the view's camera (one stage): a depth view's outliers and normals come from its pixel
 //! grid (`organized`, a positive `pixel_window`, the default), before the voxel grid (which averages
 //! the normals); a cloud view (or any view with `pixel_window = 0`) is down-sampled first, then
-//! cleaned with one k-NN pass (`clean`). Each stage runs over all views in parallel.
+//! cleaned with one k-NN pass (`clean`). The views run in parallel, each through all the stages.
 
 use std::time::Instant;
 
@@ -49,30 +49,24 @@ impl PreparedView {
 /// One entry per scan view: the prepared view, or why it cannot be used.
 pub(crate) type Views = Vec<std::result::Result<PreparedView, String>>;
 
-fn stage<F>(name: &str, views: &mut Views, reports: &mut Vec<StageReport>, f: F)
-where
-    F: Fn(PreparedView) -> Result<PreparedView> + Sync,
-{
-    let start = Instant::now();
-    let points_in = count(views);
-    let taken: Vec<_> = std::mem::take(views);
-    *views = taken
-        .into_par_iter()
-        .map(|v| match v {
-            Ok(view) => f(view).map_err(|e| e.to_string()),
-            Err(e) => Err(e),
-        })
-        .collect();
-    reports.push(StageReport {
-        name: name.into(),
-        points_in,
-        points_out: count(views),
-        seconds: start.elapsed().as_secs_f64(),
-    });
-}
+/// The per-view stages, in order (`roi` and `plane normals` only when configured).
+const STAGES: [&str; 4] = ["load", "roi", "voxel + outliers + normals", "plane normals"];
 
-fn count(views: &Views) -> usize {
-    views.iter().flatten().map(|v| v.cloud.len()).sum()
+/// One view's points in and out and its time, per stage (`None`: the stage did not run on it).
+type Tally = [Option<(usize, usize, f64)>; 4];
+
+/// Runs stage `k` on `view`: its points in and out and its time go to `tally`.
+fn timed(
+    k: usize,
+    tally: &mut Tally,
+    view: PreparedView,
+    f: impl FnOnce(PreparedView) -> Result<PreparedView>,
+) -> std::result::Result<PreparedView, String> {
+    let (start, points_in) = (Instant::now(), view.cloud.len());
+    let out = f(view);
+    let points_out = out.as_ref().map_or(0, |v| v.cloud.len());
+    tally[k] = Some((points_in, points_out, start.elapsed().as_secs_f64()));
+    out.map_err(|e| e.to_string())
 }
 
 fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
@@ -166,7 +160,9 @@ fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<Prepar
 }
 
 /// Loads and prepares every view; failures are kept per view as messages. Returns the focus point
-/// used for the region of interest, if any.
+/// used for the region of interest, if any. Each view goes through all the stages in one pass, so
+/// the raw views never pile up; a stage's reported time is the prepare's wall time times the
+/// stage's share of the per-view work.
 pub(crate) fn prepare(
     scan: &Scan,
     config: &FuseConfig,
@@ -174,45 +170,75 @@ pub(crate) fn prepare(
 ) -> (Views, Option<Point3<f64>>) {
     let start = Instant::now();
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
-    let (width, height) = scan.camera.map_or((0, 0), |c| (c.intrinsics.width as usize, c.intrinsics.height as usize));
-    let mut views: Views = (0..scan.views.len())
+    let step = config.pixel_step.max(1);
+    let (width, height) = scan.camera.map_or((0, 0), |c| {
+        ((c.intrinsics.width as usize).div_ceil(step), (c.intrinsics.height as usize).div_ceil(step))
+    });
+    let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
+    let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
+    let roi = config.roi.radius_m.zip(focus);
+    let (views, tallies): (Views, Vec<Tally>) = (0..scan.views.len())
         .into_par_iter()
         .map(|i| {
-            let loaded = load_view_every_nth(scan, i, rays.as_deref(), config.pixel_step).map_err(|e| e.to_string())?;
-            let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
-            let view =
-                PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
-            non_empty(view, "the depth range crop").map_err(|e| e.to_string())
+            let mut tally = Tally::default();
+            let view = prepare_view(scan, i, rays.as_deref(), config, roi, (width, height), &mut tally);
+            (view, tally)
         })
-        .collect();
-    let loaded = count(&views);
-    reports.push(StageReport {
-        name: "load".into(),
-        points_in: loaded,
-        points_out: loaded,
-        seconds: start.elapsed().as_secs_f64(),
-    });
-    let seeds: Vec<Isometry3<f64>> = views.iter().flatten().map(|v| v.seed).collect();
-    let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
-    if let (Some(radius), Some(focus)) = (config.roi.radius_m, focus) {
-        let r2 = (radius * radius) as f32;
-        stage("roi", &mut views, reports, |v| {
-            let camera_from_world = v.seed.inverse();
-            let centre = (camera_from_world * focus).cast::<f32>();
-            let keep: Vec<usize> =
-                (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
-            let pixels = v.pixels.map(|px| keep.iter().map(|&i| px[i]).collect());
-            non_empty(
-                PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels, measured: None },
-                "the region-of-interest crop",
-            )
+        .unzip();
+    let per_view: f64 = tallies.iter().flatten().flatten().map(|t| t.2).sum();
+    let wall = start.elapsed().as_secs_f64();
+    for (k, name) in STAGES.iter().enumerate() {
+        let ran: Vec<_> = tallies.iter().filter_map(|t| t[k]).collect();
+        if ran.is_empty() && k != 0 {
+            continue;
+        }
+        let seconds: f64 = ran.iter().map(|t| t.2).sum();
+        reports.push(StageReport {
+            name: (*name).into(),
+            points_in: ran.iter().map(|t| t.0).sum(),
+            points_out: ran.iter().map(|t| t.1).sum(),
+            seconds: if per_view > 0.0 { wall * seconds / per_view } else { 0.0 },
         });
     }
-    let step = config.pixel_step.max(1);
-    let (width, height) = (width.div_ceil(step), height.div_ceil(step));
-    stage("voxel + outliers + normals", &mut views, reports, |v| cleaned_and_oriented(v, config, width, height));
-    if let Some(params) = &config.snap_plane {
-        stage("plane normals", &mut views, reports, |v| snap_plane_normals(v, params));
-    }
     (views, focus)
+}
+
+/// View `i` through the per-view stages: load, region of interest (`roi`: radius and focus point,
+/// world frame), cleaning on a `grid`-sized pixel grid, plane-normal snap.
+fn prepare_view(
+    scan: &Scan,
+    i: usize,
+    rays: Option<&[[f32; 2]]>,
+    config: &FuseConfig,
+    roi: Option<(f64, Point3<f64>)>,
+    (width, height): (usize, usize),
+    tally: &mut Tally,
+) -> std::result::Result<PreparedView, String> {
+    let load_start = Instant::now();
+    let loaded = load_view_every_nth(scan, i, rays, config.pixel_step).map_err(|e| e.to_string())?;
+    let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
+    let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
+    let n = view.cloud.len();
+    tally[0] = Some((n, n, load_start.elapsed().as_secs_f64()));
+    let mut view = non_empty(view, "the depth range crop").map_err(|e| e.to_string())?;
+    if let Some((radius, focus)) = roi {
+        view = timed(1, tally, view, |v| within(v, radius, focus))?;
+    }
+    view = timed(2, tally, view, |v| cleaned_and_oriented(v, config, width, height))?;
+    if let Some(params) = &config.snap_plane {
+        view = timed(3, tally, view, |v| snap_plane_normals(v, params))?;
+    }
+    Ok(view)
+}
+
+/// The view's points within `radius` of `focus` (world frame).
+fn within(v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<PreparedView> {
+    let r2 = (radius * radius) as f32;
+    let centre = (v.seed.inverse() * focus).cast::<f32>();
+    let keep: Vec<usize> = (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
+    let pixels = v.pixels.map(|px| keep.iter().map(|&i| px[i]).collect());
+    non_empty(
+        PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels, measured: None },
+        "the region-of-interest crop",
+    )
 }
