@@ -6,7 +6,7 @@ use std::path::Path;
 
 use awl::image::{ColorImage, DepthImage};
 use awl::io::image::{write_color_png, write_depth_png};
-use awl::io::scan::{load_view, read_scan};
+use awl::io::scan::{load_depth_points, load_view, read_scan};
 use awl::io::{mesh, ply};
 
 const IDENTITY: &str = "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]";
@@ -125,6 +125,9 @@ fn bad_view_files_name_the_file() {
         let err = read_scan(&dir).and_then(|s| load_view(&s, 0, None)).unwrap_err().to_string();
         assert!(err.contains("000000.png"), "{name}: `{err}`");
         assert_mentions(&err, needles);
+        // the tag search's depth-only load fails the same way
+        let depth_only = read_scan(&dir).and_then(|s| load_depth_points(&s, 0, None)).unwrap_err().to_string();
+        assert_eq!(depth_only, err, "{name}");
     }
     let err = read_scan(&root.path().join("nowhere")).unwrap_err().to_string();
     assert_mentions(&err, &["nowhere", "scan.json"]);

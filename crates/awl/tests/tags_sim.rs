@@ -14,7 +14,7 @@ use std::time::Instant;
 use awl::camera::{DepthCamera, depth_to_cloud};
 use awl::image::ColorImage;
 use awl::io::mesh::read_mesh;
-use awl::io::scan::{load_view, read_scan};
+use awl::io::scan::{load_depth_points, load_view, read_scan};
 use awl::io::truth::read_truth;
 use awl::mesh::TriMesh;
 use awl::sim::{SceneKind, ShotPose, SimParams, simulate};
@@ -88,6 +88,10 @@ fn reference_cases(folder: &str) -> Vec<Case> {
             continue;
         }
         let loaded = load_view(&scan, i, None).unwrap_or_else(|e| panic!("{e}"));
+        // the tag search's depth-only load: the same points, the color image not read
+        let depth = load_depth_points(&scan, i, None).unwrap_or_else(|e| panic!("{e}")).expect("a depth view");
+        assert!(!depth.is_empty() && depth.colors.is_none(), "{folder}/{i}");
+        assert_eq!(depth.points, loaded.cloud_camera.points, "{folder}/{i}");
         cases.push(Case {
             name: format!("{folder}/{i}"),
             image: loaded.color.expect("color image"),

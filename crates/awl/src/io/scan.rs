@@ -13,7 +13,7 @@ use serde_json::{Map, Value};
 use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud_every_nth};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::image::ColorImage;
+use crate::image::{ColorImage, DepthImage};
 use crate::io::image::{read_color_png, read_depth_png};
 use crate::io::{read_bytes, write_atomic};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
@@ -395,6 +395,48 @@ pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: 
     Ok(())
 }
 
+/// The scan's camera and the depth image at `depth` (relative to the scan folder), its size checked.
+fn read_depth<'a>(scan: &'a Scan, depth: &Path) -> Result<(&'a DepthCamera, DepthImage)> {
+    let manifest = Scan::manifest_path(&scan.dir);
+    let camera = scan.camera.as_ref().ok_or_else(|| Error::field(&manifest, "camera", "missing"))?;
+    let depth_path = scan.dir.join(depth);
+    let image = read_depth_png(&depth_path)?;
+    check_size(&depth_path, camera, image.width, image.height)?;
+    Ok((camera, image))
+}
+
+/// [`depth_to_cloud_every_nth`] with the camera's ray table built here when `rays` is `None`.
+fn back_project(
+    depth: &DepthImage,
+    color: Option<&ColorImage>,
+    camera: &DepthCamera,
+    rays: Option<&[[f32; 2]]>,
+    step: usize,
+) -> (PointCloud, Vec<u32>) {
+    match rays {
+        Some(rays) => depth_to_cloud_every_nth(depth, color, camera, rays, step),
+        None => depth_to_cloud_every_nth(depth, color, camera, &camera.intrinsics.ray_table(), step),
+    }
+}
+
+/// A depth view's points in the camera frame (depth range applied), without colors: the color
+/// image is not read. `None` for a point-file view.
+///
+/// # Errors
+/// As [`load_view`].
+pub fn load_depth_points(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result<Option<PointCloud>> {
+    let view = scan.views.get(index).ok_or_else(|| {
+        Error::field(
+            Scan::manifest_path(&scan.dir),
+            "views",
+            format!("no view {index} (scan has {})", scan.views.len()),
+        )
+    })?;
+    let ViewData::Depth { depth, .. } = &view.data else { return Ok(None) };
+    let (camera, image) = read_depth(scan, depth)?;
+    Ok(Some(back_project(&image, None, camera, rays, 1).0))
+}
+
 /// Loads view `index`: its points in the camera frame (depth range applied), colors, and seed pose.
 ///
 /// # Errors
@@ -415,11 +457,7 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
     let view = &scan.views[index];
     match &view.data {
         ViewData::Depth { depth, color } => {
-            let manifest = Scan::manifest_path(&scan.dir);
-            let camera = scan.camera.as_ref().ok_or_else(|| Error::field(&manifest, "camera", "missing"))?;
-            let depth_path = scan.dir.join(depth);
-            let depth_image = read_depth_png(&depth_path)?;
-            check_size(&depth_path, camera, depth_image.width, depth_image.height)?;
+            let (camera, depth_image) = read_depth(scan, depth)?;
             let color = match color {
                 Some(c) => {
                     let color_path = scan.dir.join(c);
@@ -429,15 +467,7 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
                 }
                 None => None,
             };
-            let owned;
-            let rays = match rays {
-                Some(r) => r,
-                None => {
-                    owned = camera.intrinsics.ray_table();
-                    &owned
-                }
-            };
-            let (cloud_camera, pixels) = depth_to_cloud_every_nth(&depth_image, color.as_ref(), camera, rays, step);
+            let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
             Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
         }
         ViewData::Points { points } => {

@@ -10,7 +10,7 @@ use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
 use crate::io::image::read_color_png;
-use crate::io::scan::{Scan, TagSpec, ViewData, check_size, load_view};
+use crate::io::scan::{Scan, TagSpec, ViewData, check_size, load_depth_points};
 use crate::tag::{AprilTagDetector, DetectorParams, TagDetection, TagDetector, estimate_tag_pose, score_depth};
 use crate::workpiece::mean::{MeanParams, robust_mean};
 
@@ -335,12 +335,12 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
         let image = read_color_png(&color_path)?;
         check_size(&color_path, camera, image.width, image.height)?;
         let found = detector.detect_color(&image)?;
-        let loaded = if found.iter().any(|d| d.id == tag.id) {
-            Some(load_view(scan, index, Some(rays.get_or_init(|| camera.intrinsics.ray_table())))?)
+        let depth = if found.iter().any(|d| d.id == tag.id) {
+            load_depth_points(scan, index, Some(rays.get_or_init(|| camera.intrinsics.ray_table())))?
         } else {
             None
         };
-        let points_camera = loaded.as_ref().map_or(&[][..], |l| &l.cloud_camera.points[..]);
+        let points_camera = depth.as_ref().map_or(&[][..], |c| &c.points[..]);
         Ok(Some((index, pose_detections(found, index, points_camera, &camera.intrinsics, tag, params))))
     })?;
     Ok(Some(TagSearch { tag: tag.clone(), views }))
