@@ -204,7 +204,7 @@ pub(crate) fn prepare(
 }
 
 /// View `i` through the per-view stages: load, region of interest (`roi`: radius and focus point,
-/// world frame), cleaning on a `grid`-sized pixel grid, plane-normal snap.
+/// world frame), cleaning on the `width` x `height` grid of the kept pixels, plane-normal snap.
 fn prepare_view(
     scan: &Scan,
     i: usize,
