@@ -126,7 +126,8 @@ fn bad_view_files_name_the_file() {
         assert!(err.contains("000000.png"), "{name}: `{err}`");
         assert_mentions(&err, needles);
         // the tag search's depth-only load fails the same way
-        let depth_only = read_scan(&dir).and_then(|s| load_depth_points(&s, 0, None)).unwrap_err().to_string();
+        let depth_only =
+            read_scan(&dir).and_then(|s| load_depth_points(&s, 0, None)).expect_err("depth-only load").to_string();
         assert_eq!(depth_only, err, "{name}");
     }
     let err = read_scan(&root.path().join("nowhere")).unwrap_err().to_string();

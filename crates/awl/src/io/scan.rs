@@ -112,6 +112,20 @@ impl Scan {
         dir.join("scan.json")
     }
 
+    /// View `index` of the manifest.
+    ///
+    /// # Errors
+    /// [`Error::Field`] (`views`) when the index is out of range.
+    pub fn view(&self, index: usize) -> Result<&ViewSpec> {
+        self.views.get(index).ok_or_else(|| {
+            Error::field(
+                Self::manifest_path(&self.dir),
+                "views",
+                format!("no view {index} (scan has {})", self.views.len()),
+            )
+        })
+    }
+
     /// The recorded `T_world_camera` of view `index`.
     ///
     /// # Errors
@@ -119,10 +133,7 @@ impl Scan {
     /// (the reader already refuses that, so only hand-built scans reach it), or the index is out of range.
     pub fn world_from_camera(&self, index: usize) -> Result<Isometry3<f64>> {
         let manifest = Self::manifest_path(&self.dir);
-        let view = self.views.get(index).ok_or_else(|| {
-            Error::field(&manifest, "views", format!("no view {index} (scan has {})", self.views.len()))
-        })?;
-        match view.pose {
+        match self.view(index)?.pose {
             ViewPose::Camera { world_from_camera } => Ok(world_from_camera),
             ViewPose::Chain { world_from_base, base_from_ee } => {
                 let ee_from_camera = self
@@ -387,7 +398,7 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
     write_atomic(&path, text.as_bytes())
 }
 
-pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
+fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
     if (width, height) != (w, h) {
         return Err(Error::format(path, format!("image is {width}x{height}, scan.json camera says {w}x{h}")));
@@ -403,6 +414,14 @@ fn read_depth<'a>(scan: &'a Scan, depth: &Path) -> Result<(&'a DepthCamera, Dept
     let image = read_depth_png(&depth_path)?;
     check_size(&depth_path, camera, image.width, image.height)?;
     Ok((camera, image))
+}
+
+/// The color image at `color` (relative to the scan folder), its size checked against `camera`.
+pub(crate) fn read_color(scan: &Scan, camera: &DepthCamera, color: &Path) -> Result<ColorImage> {
+    let color_path = scan.dir.join(color);
+    let image = read_color_png(&color_path)?;
+    check_size(&color_path, camera, image.width, image.height)?;
+    Ok(image)
 }
 
 /// [`depth_to_cloud_every_nth`] with the camera's ray table built here when `rays` is `None`.
@@ -425,14 +444,7 @@ fn back_project(
 /// # Errors
 /// As [`load_view`].
 pub fn load_depth_points(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result<Option<PointCloud>> {
-    let view = scan.views.get(index).ok_or_else(|| {
-        Error::field(
-            Scan::manifest_path(&scan.dir),
-            "views",
-            format!("no view {index} (scan has {})", scan.views.len()),
-        )
-    })?;
-    let ViewData::Depth { depth, .. } = &view.data else { return Ok(None) };
+    let ViewData::Depth { depth, .. } = &scan.view(index)?.data else { return Ok(None) };
     let (camera, image) = read_depth(scan, depth)?;
     Ok(Some(back_project(&image, None, camera, rays, 1).0))
 }
@@ -454,19 +466,10 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
 /// As [`load_view`].
 pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>, step: usize) -> Result<LoadedView> {
     let world_from_camera = scan.world_from_camera(index)?;
-    let view = &scan.views[index];
-    match &view.data {
+    match &scan.view(index)?.data {
         ViewData::Depth { depth, color } => {
             let (camera, depth_image) = read_depth(scan, depth)?;
-            let color = match color {
-                Some(c) => {
-                    let color_path = scan.dir.join(c);
-                    let image = read_color_png(&color_path)?;
-                    check_size(&color_path, camera, image.width, image.height)?;
-                    Some(image)
-                }
-                None => None,
-            };
+            let color = color.as_deref().map(|c| read_color(scan, camera, c)).transpose()?;
             let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
             Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
         }

@@ -48,10 +48,9 @@ fn timed<T>(
 /// twice.
 fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) -> PointCloud {
     // The registration's copies (smoothed, when `registration_smoothing_m` is set) freed first.
-    let measured: Vec<Option<PointCloud>> =
-        views.into_iter().zip(poses).map(|(view, pose)| pose.and(view.ok()).map(PreparedView::into_measured)).collect();
-    let mut clouds =
-        measured.into_iter().zip(poses).filter_map(|(cloud, pose)| Some(cloud?.into_transformed(pose.as_ref()?)));
+    let measured: Vec<(PointCloud, Isometry3<f64>)> =
+        views.into_iter().zip(poses).filter_map(|(view, pose)| Some((view.ok()?.into_measured(), (*pose)?))).collect();
+    let mut clouds = measured.into_iter().map(|(cloud, pose)| cloud.into_transformed(&pose));
     // The first view's buffers, grown once to hold them all.
     let Some(mut all) = clouds.next() else { return PointCloud::default() };
     let more = points.saturating_sub(all.len());

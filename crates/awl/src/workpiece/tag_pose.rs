@@ -9,8 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
-use crate::io::image::read_color_png;
-use crate::io::scan::{Scan, TagSpec, ViewData, check_size, load_depth_points};
+use crate::io::scan::{Scan, TagSpec, ViewData, load_depth_points, read_color};
 use crate::tag::{AprilTagDetector, DetectorParams, TagDetection, TagDetector, estimate_tag_pose, score_depth};
 use crate::workpiece::mean::{MeanParams, robust_mean};
 
@@ -331,9 +330,7 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     // planar ambiguity): most views do not see the tag
     let views = detect_each(scan.views.len(), &params.detector, 1, |detector, index| {
         let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
-        let color_path = scan.dir.join(color);
-        let image = read_color_png(&color_path)?;
-        check_size(&color_path, camera, image.width, image.height)?;
+        let image = read_color(scan, camera, color)?;
         let found = detector.detect_color(&image)?;
         let depth = if found.iter().any(|d| d.id == tag.id) {
             load_depth_points(scan, index, Some(rays.get_or_init(|| camera.intrinsics.ray_table())))?
