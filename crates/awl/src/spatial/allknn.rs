@@ -1,17 +1,19 @@
 //! The `k` nearest neighbours of every point of a set at once (outlier removal, normals).
 //!
 //! The points are ordered into a [`LeafTree`] (median splits on the widest axis, 16-32 points a
-//! leaf, one coordinate array per axis in tree order) and answered leaf by leaf, each query as a
-//! search within a reach that surely holds its `k` nearest points: the least, over the leaf's
-//! queries already answered, of their `k`-th distance plus the step to them, or for a leaf's first
-//! query the `k`-th distance among its seed (the smallest subtree about it with `2k` points).
-//! Neighbouring queries make the reach tight (about 4x the `k` points are collected on two
-//! overlapping noisy views). Before it, a guess is tried: 1.15x the `k`-th distance of the query
-//! that gives the least bound; a ball holding `k` points holds the `k` nearest, so the guess is
-//! kept when it does (84 % of the queries on sim300k, 92 % on table_mug at k = 20), and costs a
-//! second search when not. The search starts below every ancestor whose other side is out of
-//! reach, and candidates are kept as one integer (distance bits, index) that sorts without a
-//! comparator.
+//! leaf, one coordinate array per axis in tree order) and answered leaf by leaf. A leaf's first
+//! query is a tree search within a reach that surely holds its `k` nearest points: the `k`-th
+//! distance among its seed (the smallest subtree about it with `2k` points). Then the points within
+//! 1.3x that query's `k`-th distance of the leaf's box are gathered once ([`SPREAD`]: about 230
+//! points at k = 20 on sim300k), and every other query of the leaf scans them: first within a guess
+//! of 1.15x the previous query's `k`-th distance, then within the whole gathered reach. A ball
+//! about the query that holds `k` points holds its `k` nearest, and the gathered points hold every
+//! point of any ball within the gathered reach, so the rows are exact; 92 % of sim300k's queries
+//! are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
+//! within the least, over the leaf's queries already answered, of their `k`-th distance plus the
+//! step to them (first a guess of 1.15x the `k`-th distance of the query giving it). A tree search
+//! starts below every ancestor whose other side is out of reach. Candidates are kept as one integer
+//! (distance bits, index) that sorts without a comparator.
 //!
 //! Each row holds the `k` points smallest by (squared distance, index), nearest first: the
 //! distances [`super::KdIndex::knn`] gives (computed the same way, `dx² + dy² + dz²` in f32), and
@@ -23,8 +25,8 @@
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use super::leaftree::{LeafTree, Node, candidate, neighbor};
-use super::{Neighbor, widen};
+use super::leaftree::{Aabb, LeafTree, Node, candidate, neighbor};
+use super::{Neighbor, dist_sq, widen};
 
 use crate::error::Result;
 
@@ -39,6 +41,11 @@ struct Scratch {
     path: Vec<(Node, usize)>,
     /// The leaf's queries answered so far and their `k`-th distances (m).
     done: Vec<([f32; 3], f32)>,
+    /// The points near the current leaf (see [`LeafTree::near_box`]), one array per axis.
+    near: [Vec<f32>; 3],
+    near_ids: Vec<u32>,
+    /// Room for a candidate of every `near` point (only grows: no clearing per query).
+    near_found: Vec<u64>,
 }
 
 impl LeafTree {
@@ -72,8 +79,79 @@ impl LeafTree {
     }
 }
 
-/// The first reach tried for a query, as a multiple of the `k`-th distance of the answered query
-/// whose bound is the least. On sim300k at k = 20, 6 % of the queries need the second search at
+impl LeafTree {
+    /// Every point whose squared distance to the box `b` is at most `reach`, into the scratch's
+    /// `near` arrays: they hold every point within `sqrt(reach)` of any point in `b`.
+    fn near_box(&self, from: Node, b: &Aabb, reach: f32, scratch: &mut Scratch) {
+        let Scratch { stack, near, near_ids, .. } = scratch;
+        for axis in near.iter_mut() {
+            axis.clear();
+        }
+        near_ids.clear();
+        stack.clear();
+        stack.push(from);
+        while let Some(node) = stack.pop() {
+            if self.boxes[node.id].gap_box(b) > reach {
+                continue;
+            }
+            if node.is_leaf() {
+                // every point written, the count advanced for those within reach (no branch)
+                let mut count = near_ids.len();
+                let len = count + node.end - node.start;
+                for axis in near.iter_mut() {
+                    axis.resize(len, 0.0);
+                }
+                near_ids.resize(len, 0);
+                for j in node.start..node.end {
+                    let p = [self.xs[j], self.ys[j], self.zs[j]];
+                    for (axis, v) in near.iter_mut().zip(p) {
+                        axis[count] = v;
+                    }
+                    near_ids[count] = self.ids[j];
+                    count += usize::from(b.gap(p) <= reach);
+                }
+                for axis in near.iter_mut() {
+                    axis.truncate(count);
+                }
+                near_ids.truncate(count);
+            } else {
+                let (l, r) = node.children();
+                stack.push(r);
+                stack.push(l);
+            }
+        }
+    }
+}
+
+/// Every point of the scratch's `near` arrays within squared distance `reach` of `q`, into
+/// `found`.
+fn near_within(q: [f32; 3], reach: f32, scratch: &mut Scratch) {
+    let Scratch { found, near: [xs, ys, zs], near_ids, near_found, dist, .. } = scratch;
+    let n = near_ids.len();
+    if near_found.len() < n {
+        near_found.resize(n, 0);
+    }
+    // the distances first, in vector registers, then the candidates within reach (no branch)
+    dist.clear();
+    dist.extend(xs.iter().zip(ys.iter()).zip(zs.iter()).map(|((&x, &y), &z)| dist_sq([x, y, z], q)));
+    let mut count = 0;
+    for (&d, &i) in dist.iter().zip(near_ids.iter()) {
+        near_found[count] = candidate(d, i);
+        count += usize::from(d <= reach);
+    }
+    found.clear();
+    found.extend_from_slice(&near_found[..count]);
+}
+
+/// The reach about a leaf's box within which its points are gathered once for all its queries,
+/// as a multiple of its first query's `k`-th distance. On sim300k at k = 20: 75 / 92 / 94 % of
+/// the queries answered from 188 / 226 / 267 gathered points at 1.1 / 1.3 / 1.5; normals fastest at
+/// 1.3 (BENCHMARKS.md 51).
+const SPREAD: f32 = 1.3;
+
+/// The first reach tried for a query, as a multiple of a nearby answered query's `k`-th distance:
+/// the previous one among the gathered points, the one giving the least bound in a tree search.
+/// In the tree search alone, on sim300k at k = 20, 6 % of the queries need the second search at
 /// 1.2, 16 % at 1.15, 19 % at 1.1; SOR and normals 11-15 % faster at 1.15 than with the bound
 /// alone (BENCHMARKS.md 36).
 const GUESS: f32 = 1.15;
@@ -98,47 +176,70 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
         let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
         widen(kth.sqrt())
     };
+    let mut spread = None;
     for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
         let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
-        // each query done bounds this one's k-th distance by its own plus the step: the least,
-        // and the k-th distance of the query that gives it
-        let (bound, near) = done
-            .iter()
-            .map(|&(p, d)| (((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt() + d, d))
-            .fold((f32::INFINITY, 0.0), |best, b| if b.0 < best.0 { b } else { best });
-        let reach = if done.is_empty() { seed_reach(q, &mut scratch.dist) } else { widen(bound) };
-        // the highest ancestor with a child off the path to the leaf whose box is within reach
-        // (with a margin against rounding): every point outside it lies in such a box
-        let from = |r: f32| {
-            let r = widen(r);
-            path.iter().find(|(_, off)| tree.boxes[*off].gap(q) <= r * r).map_or(leaf, |p| p.0)
-        };
-        // first a guess near that query's k-th distance: a ball holding k points holds the k
-        // nearest, so the guess is kept when it does and only costs a second search when not
-        let guess = widen(GUESS * near);
+        // the leaf's gathered points hold every point within `spread` of the query: first a
+        // guess near the previous query's k-th distance, then all of them
         let mut searched = false;
-        if guess < reach {
-            tree.within(from(guess), q, guess * guess, scratch);
+        if let (Some(spread), Some(&(_, previous))) = (spread, done.last()) {
+            let guess = widen(GUESS * previous).min(spread);
+            near_within(q, guess * guess, scratch);
             searched = scratch.found.len() >= k;
+            if !searched && guess < spread {
+                near_within(q, spread * spread, scratch);
+                searched = scratch.found.len() >= k;
+            }
         }
         if !searched {
-            tree.within(from(reach), q, reach * reach, scratch);
+            // each query done bounds this one's k-th distance by its own plus the step: the least,
+            // and the k-th distance of the query that gives it
+            let (bound, near) = done
+                .iter()
+                .map(|&(p, d)| (((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt() + d, d))
+                .fold((f32::INFINITY, 0.0), |best, b| if b.0 < best.0 { b } else { best });
+            let reach = if done.is_empty() { seed_reach(q, &mut scratch.dist) } else { widen(bound) };
+            // the highest ancestor with a child off the path to the leaf whose box is within reach
+            // (with a margin against rounding): every point outside it lies in such a box
+            let from = |r: f32| {
+                let r = widen(r);
+                path.iter().find(|(_, off)| tree.boxes[*off].gap(q) <= r * r).map_or(leaf, |p| p.0)
+            };
+            // first a guess near that query's k-th distance: a ball holding k points holds the k
+            // nearest, so the guess is kept when it does and only costs a second search when not
+            let guess = widen(GUESS * near);
+            if guess < reach {
+                tree.within(from(guess), q, guess * guess, scratch);
+                searched = scratch.found.len() >= k;
+            }
+            if !searched {
+                tree.within(from(reach), q, reach * reach, scratch);
+            }
+            if scratch.found.len() < k {
+                // rounding: the seed's reach always holds k points
+                let reach = seed_reach(q, &mut scratch.dist);
+                tree.within(from(reach), q, reach * reach, scratch);
+            }
         }
-        if scratch.found.len() < k {
-            // rounding: the seed's reach always holds k points
-            let reach = seed_reach(q, &mut scratch.dist);
-            tree.within(from(reach), q, reach * reach, scratch);
-        }
+        // sorting up to 2k candidates whole is cheaper than selecting the k first (normals 10 %)
         let found = &mut scratch.found;
-        if found.len() > k {
+        if found.len() > 2 * k {
             found.select_nth_unstable(k - 1);
             found.truncate(k);
         }
         found.sort_unstable();
+        found.truncate(k);
         for (slot, &c) in row.iter_mut().zip(found.iter()) {
             *slot = neighbor(c);
         }
         done.push((q, row[k - 1].dist_sq.sqrt()));
+        if spread.is_none() {
+            let r = SPREAD * row[k - 1].dist_sq.sqrt();
+            let b = &tree.boxes[leaf.id];
+            let from = path.iter().find(|(_, off)| tree.boxes[*off].gap_box(b) <= r * r).map_or(leaf, |p| p.0);
+            tree.near_box(from, b, r * r, scratch);
+            spread = Some(r);
+        }
     }
     (scratch.path, scratch.done) = (path, done);
 }

@@ -58,6 +58,13 @@ impl Aabb {
         Self { lo: [0, 1, 2].map(|a| self.lo[a].min(o.lo[a])), hi: [0, 1, 2].map(|a| self.hi[a].max(o.hi[a])) }
     }
 
+    /// Squared distance to the box `o` (0 when they overlap): at most the distance from any point
+    /// in one to any point in the other, in floating point too.
+    pub(super) fn gap_box(&self, o: &Self) -> f32 {
+        let g = [0, 1, 2].map(|a| (o.lo[a] - self.hi[a]).max(self.lo[a] - o.hi[a]).max(0.0));
+        g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+    }
+
     /// Squared distance from `q` (0 inside).
     pub(super) fn gap(&self, q: [f32; 3]) -> f32 {
         let g = [0, 1, 2].map(|a| (self.lo[a] - q[a]).max(q[a] - self.hi[a]).max(0.0));
