@@ -139,9 +139,17 @@ pub fn depth_to_cloud_with_pixels(
     depth_to_cloud_every_nth(depth, color, camera, rays, 1)
 }
 
+/// The `(width, height)` of the grid of every `step`-th row and column (from the first) of a
+/// `width` x `height` image: the grid [`depth_to_cloud_every_nth`] numbers its pixels on. `step` 0
+/// is taken as 1.
+pub fn every_nth_grid(width: usize, height: usize, step: usize) -> (usize, usize) {
+    let step = step.max(1);
+    (width.div_ceil(step), height.div_ceil(step))
+}
+
 /// Like [`depth_to_cloud_with_pixels`] on the pixels of every `step`-th row and column only (from
-/// the first), each point's pixel numbered on that coarser grid (`width.div_ceil(step)` wide).
-/// `step` 0 is taken as 1.
+/// the first), each point's pixel numbered on that coarser grid ([`every_nth_grid`]). `step` 0 is
+/// taken as 1.
 pub fn depth_to_cloud_every_nth(
     depth: &DepthImage,
     color: Option<&ColorImage>,
@@ -151,7 +159,7 @@ pub fn depth_to_cloud_every_nth(
 ) -> (PointCloud, Vec<u32>) {
     let step = step.max(1);
     let (width, height) = (depth.width as usize, depth.height as usize);
-    let coarse_width = width.div_ceil(step);
+    let (coarse_width, _) = every_nth_grid(width, height, step);
     let (mut points, mut pixels) = (Vec::new(), Vec::new());
     let mut colors = color.map(|_| Vec::new());
     for v in (0..height).step_by(step) {

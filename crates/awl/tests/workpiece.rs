@@ -149,6 +149,11 @@ fn the_tag_search_before_the_poses_gives_the_estimate_of_the_views_with_their_po
     // poses for fewer views than were searched: an error naming the poses
     let err = search.place(&poses[..seeing], &params).expect_err("too few poses").to_string();
     assert!(err.contains("view poses") && err.contains(&format!("view {seeing}")), "{err}");
+    // a scan without its camera: the error names scan.json and the field, as the view loader's
+    let mut no_camera = case.scan.clone();
+    no_camera.camera = None;
+    let err = search_tags(&no_camera, &params).expect_err("no camera").to_string();
+    assert!(err.contains("scan.json") && err.contains("camera") && err.contains("missing"), "{err}");
 }
 
 #[test]

@@ -126,6 +126,14 @@ impl Scan {
         })
     }
 
+    /// The depth camera (`camera` in `scan.json`).
+    ///
+    /// # Errors
+    /// [`Error::Field`] (`camera`) when the scan has none.
+    pub fn depth_camera(&self) -> Result<&DepthCamera> {
+        self.camera.as_ref().ok_or_else(|| Error::field(Self::manifest_path(&self.dir), "camera", "missing"))
+    }
+
     /// The recorded `T_world_camera` of view `index`.
     ///
     /// # Errors
@@ -408,8 +416,7 @@ fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Res
 
 /// The scan's camera and the depth image at `depth` (relative to the scan folder), its size checked.
 fn read_depth<'a>(scan: &'a Scan, depth: &Path) -> Result<(&'a DepthCamera, DepthImage)> {
-    let manifest = Scan::manifest_path(&scan.dir);
-    let camera = scan.camera.as_ref().ok_or_else(|| Error::field(&manifest, "camera", "missing"))?;
+    let camera = scan.depth_camera()?;
     let depth_path = scan.dir.join(depth);
     let image = read_depth_png(&depth_path)?;
     check_size(&depth_path, camera, image.width, image.height)?;
@@ -459,7 +466,7 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
 }
 
 /// [`load_view`] keeping a depth view's pixels on every `step`-th row and column only, each
-/// point's pixel numbered on that coarser grid (`width.div_ceil(step)` wide; see
+/// point's pixel numbered on that coarser grid ([`crate::camera::every_nth_grid`]; see
 /// [`crate::camera::depth_to_cloud_every_nth`]). A point-file view is loaded whole.
 ///
 /// # Errors

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::clean::{clean_on_grid, clean_with_normals};
 use super::config::FuseConfig;
 use super::report::StageReport;
+use crate::camera::every_nth_grid;
 use crate::cloud::PointCloud;
 use crate::error::Result;
 use crate::filter::outlier::statistical;
@@ -170,9 +171,8 @@ pub(crate) fn prepare(
 ) -> (Views, Option<Point3<f64>>) {
     let start = Instant::now();
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
-    let step = config.pixel_step.max(1);
     let (width, height) = scan.camera.map_or((0, 0), |c| {
-        ((c.intrinsics.width as usize).div_ceil(step), (c.intrinsics.height as usize).div_ceil(step))
+        every_nth_grid(c.intrinsics.width as usize, c.intrinsics.height as usize, config.pixel_step)
     });
     let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
     let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));

@@ -44,7 +44,7 @@ struct Scratch {
     /// The points near the current leaf (see [`LeafTree::near_box`]), one array per axis.
     near: [Vec<f32>; 3],
     near_ids: Vec<u32>,
-    /// Room for a candidate of every `near` point (only grows: no clearing per query).
+    /// Room for a candidate of every `near` point (see [`near_within`]).
     near_found: Vec<u64>,
 }
 
@@ -61,14 +61,10 @@ impl LeafTree {
             while self.boxes[node.id].gap(q) <= reach {
                 if node.is_leaf() {
                     self.distances(q, node, dist);
-                    // every point written, the count advanced for those within reach (no branch)
-                    let mut count = found.len();
-                    found.resize(count + dist.len(), 0);
-                    for (&d, &i) in dist.iter().zip(&self.ids[node.start..node.end]) {
-                        found[count] = candidate(d, i);
-                        count += usize::from(d <= reach);
-                    }
-                    found.truncate(count);
+                    let start = found.len();
+                    found.resize(start + dist.len(), 0);
+                    let count = compact_within(&mut found[start..], dist, &self.ids[node.start..node.end], reach);
+                    found.truncate(start + count);
                     break;
                 }
                 let (l, r) = node.children();
@@ -77,9 +73,7 @@ impl LeafTree {
             }
         }
     }
-}
 
-impl LeafTree {
     /// Every point whose squared distance to the box `b` is at most `reach`, into the scratch's
     /// `near` arrays: they hold every point within `sqrt(reach)` of any point in `b`.
     fn near_box(&self, from: Node, b: &Aabb, reach: f32, scratch: &mut Scratch) {
@@ -123,24 +117,38 @@ impl LeafTree {
     }
 }
 
-/// Every point of the scratch's `near` arrays within squared distance `reach` of `q`, into
-/// `found`.
-fn near_within(q: [f32; 3], reach: f32, scratch: &mut Scratch) {
-    let Scratch { found, near: [xs, ys, zs], near_ids, near_found, dist, .. } = scratch;
-    let n = near_ids.len();
-    if near_found.len() < n {
-        near_found.resize(n, 0);
-    }
-    // the distances first, in vector registers, then the candidates within reach (no branch)
-    dist.clear();
-    dist.extend(xs.iter().zip(ys.iter()).zip(zs.iter()).map(|((&x, &y), &z)| dist_sq([x, y, z], q)));
+/// The candidates (see [`candidate`]) of the points with squared distances `dist` and indices
+/// `ids` that are within `reach`, written to the start of `out` (as long as `dist` at least): every
+/// point written, the count advanced for those within reach (no branch). Returns the count.
+fn compact_within(out: &mut [u64], dist: &[f32], ids: &[u32], reach: f32) -> usize {
     let mut count = 0;
-    for (&d, &i) in dist.iter().zip(near_ids.iter()) {
-        near_found[count] = candidate(d, i);
+    for (&d, &i) in dist.iter().zip(ids) {
+        out[count] = candidate(d, i);
         count += usize::from(d <= reach);
     }
+    count
+}
+
+/// Every point of the scratch's `near` arrays within squared distance `reach` of `q`, into
+/// `found`: the distances first (in vector registers), then the candidates, compacted in
+/// `near_found` (which only grows: not cleared per query).
+fn near_within(q: [f32; 3], reach: f32, scratch: &mut Scratch) {
+    let Scratch { found, near: [xs, ys, zs], near_ids, near_found, dist, .. } = scratch;
+    dist.clear();
+    dist.extend(xs.iter().zip(ys.iter()).zip(zs.iter()).map(|((&x, &y), &z)| dist_sq([x, y, z], q)));
+    if near_found.len() < dist.len() {
+        near_found.resize(dist.len(), 0);
+    }
+    let count = compact_within(near_found, dist, near_ids, reach);
     found.clear();
     found.extend_from_slice(&near_found[..count]);
+}
+
+/// The highest ancestor on `path` (a leaf's, as in [`leaf_rows`]) with a child off the path whose
+/// box is within squared distance `reach` of the box `b`, or `leaf` when there is none: every
+/// point outside the subtree returned is farther than that from `b`.
+fn search_root(tree: &LeafTree, path: &[(Node, usize)], leaf: Node, b: &Aabb, reach: f32) -> Node {
+    path.iter().find(|(_, off)| tree.boxes[*off].gap_box(b) <= reach).map_or(leaf, |p| p.0)
 }
 
 /// The reach about a leaf's box within which its points are gathered once for all its queries,
@@ -196,14 +204,15 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
             // and the k-th distance of the query that gives it
             let (bound, near) = done
                 .iter()
-                .map(|&(p, d)| (((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt() + d, d))
+                .map(|&(p, d)| (dist_sq(q, p).sqrt() + d, d))
                 .fold((f32::INFINITY, 0.0), |best, b| if b.0 < best.0 { b } else { best });
             let reach = if done.is_empty() { seed_reach(q, &mut scratch.dist) } else { widen(bound) };
-            // the highest ancestor with a child off the path to the leaf whose box is within reach
-            // (with a margin against rounding): every point outside it lies in such a box
+            // the search starts below every ancestor whose other side is out of reach (with a
+            // margin against rounding)
+            let at_q = Aabb { lo: q, hi: q };
             let from = |r: f32| {
                 let r = widen(r);
-                path.iter().find(|(_, off)| tree.boxes[*off].gap(q) <= r * r).map_or(leaf, |p| p.0)
+                search_root(tree, &path, leaf, &at_q, r * r)
             };
             // first a guess near that query's k-th distance: a ball holding k points holds the k
             // nearest, so the guess is kept when it does and only costs a second search when not
@@ -236,8 +245,7 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
         if spread.is_none() {
             let r = SPREAD * row[k - 1].dist_sq.sqrt();
             let b = &tree.boxes[leaf.id];
-            let from = path.iter().find(|(_, off)| tree.boxes[*off].gap_box(b) <= r * r).map_or(leaf, |p| p.0);
-            tree.near_box(from, b, r * r, scratch);
+            tree.near_box(search_root(tree, &path, leaf, b, r * r), b, r * r, scratch);
             spread = Some(r);
         }
     }

@@ -315,12 +315,12 @@ pub struct TagSearch {
 /// scan declares no tag.
 ///
 /// # Errors
-/// [`Error::Invalid`] for an unsupported tag spec, a scan without a camera, or when the detector
-/// cannot run; any error of loading a view.
+/// [`Error::Invalid`] for an unsupported tag spec or when the detector cannot run;
+/// [`Error::Field`] for a scan without a camera; any error of loading a view.
 pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<TagSearch>> {
     let Some(tag) = scan.tag.as_ref() else { return Ok(None) };
     check_tag_spec(tag)?;
-    let camera = scan.camera.as_ref().ok_or_else(|| Error::invalid("scan.json camera", "missing"))?;
+    let camera = scan.depth_camera()?;
     // the ray table only once a view needs its depth (most scans: the first view that sees the tag)
     let rays = std::sync::OnceLock::new();
     // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
