@@ -5,11 +5,12 @@
 //! query is a tree search within a reach that surely holds its `k` nearest points: the `k`-th
 //! distance among its seed (the smallest subtree about it with `2k` points). Then the points within
 //! 1.3x that query's `k`-th distance of the leaf's box are gathered once ([`SPREAD`]: about 230
-//! points at k = 20 on sim300k), and every other query of the leaf scans them: first within a guess
-//! of 1.15x the previous query's `k`-th distance, then within the whole gathered reach. A ball
-//! about the query that holds `k` points holds its `k` nearest, and the gathered points hold every
-//! point of any ball within the gathered reach, so the rows are exact; 92 % of sim300k's queries
-//! are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
+//! points at k = 20 on sim300k; a leaf that would gather more than [`GATHER_CAP`] times `k`, spread
+//! out beside denser points, is left to the tree search), and every other query of the leaf scans
+//! them: first within a guess of 1.15x the previous query's `k`-th distance, then within the whole
+//! gathered reach. A ball about the query that holds `k` points holds its `k` nearest, and the
+//! gathered points hold every point of any ball within the gathered reach, so the rows are exact;
+//! 92 % of sim300k's queries are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
 //! within the least, over the leaf's queries already answered, of their `k`-th distance plus the
 //! step to them (first a guess of 1.15x the `k`-th distance of the query giving it). A tree search
 //! starts below every ancestor whose other side is out of reach. Candidates are kept as one integer
@@ -75,8 +76,9 @@ impl LeafTree {
     }
 
     /// Every point whose squared distance to the box `b` is at most `reach`, into the scratch's
-    /// `near` arrays: they hold every point within `sqrt(reach)` of any point in `b`.
-    fn near_box(&self, from: Node, b: &Aabb, reach: f32, scratch: &mut Scratch) {
+    /// `near` arrays: they hold every point within `sqrt(reach)` of any point in `b`. Stops and
+    /// returns `false` once more than `cap` points are found.
+    fn near_box(&self, from: Node, b: &Aabb, reach: f32, cap: usize, scratch: &mut Scratch) -> bool {
         let Scratch { stack, near, near_ids, .. } = scratch;
         for axis in near.iter_mut() {
             axis.clear();
@@ -108,12 +110,16 @@ impl LeafTree {
                     axis.truncate(count);
                 }
                 near_ids.truncate(count);
+                if count > cap {
+                    return false;
+                }
             } else {
                 let (l, r) = node.children();
                 stack.push(r);
                 stack.push(l);
             }
         }
+        true
     }
 }
 
@@ -157,6 +163,11 @@ fn search_root(tree: &LeafTree, path: &[(Node, usize)], leaf: Node, b: &Aabb, re
 /// 1.3 (BENCHMARKS.md 51).
 const SPREAD: f32 = 1.3;
 
+/// The most points a leaf gathers, as a multiple of `k` (1000 at k = 20): scanning more per query
+/// costs more than the tree search. Without it, 4 of sim300k's 16 k leaves gathered 130-500 k
+/// points each, 23 % of all the points scanned (BENCHMARKS.md 52).
+const GATHER_CAP: usize = 50;
+
 /// The first reach tried for a query, as a multiple of a nearby answered query's `k`-th distance:
 /// the previous one among the gathered points, the one giving the least bound in a tree search.
 /// In the tree search alone, on sim300k at k = 20, 6 % of the queries need the second search at
@@ -184,7 +195,8 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
         let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
         widen(kth.sqrt())
     };
-    let mut spread = None;
+    // the gathered reach, once gathered (the first query answered)
+    let (mut spread, mut gathered) = (None, false);
     for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
         let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
         // the leaf's gathered points hold every point within `spread` of the query: first a
@@ -242,11 +254,13 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
             *slot = neighbor(c);
         }
         done.push((q, row[k - 1].dist_sq.sqrt()));
-        if spread.is_none() {
+        if !gathered {
             let r = SPREAD * row[k - 1].dist_sq.sqrt();
             let b = &tree.boxes[leaf.id];
-            tree.near_box(search_root(tree, &path, leaf, b, r * r), b, r * r, scratch);
-            spread = Some(r);
+            gathered = true;
+            // a leaf spread out beside denser points would gather thousands: left to the tree search
+            spread =
+                tree.near_box(search_root(tree, &path, leaf, b, r * r), b, r * r, GATHER_CAP * k, scratch).then_some(r);
         }
     }
     (scratch.path, scratch.done) = (path, done);
@@ -263,8 +277,16 @@ fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<No
     Ok(Some((tree, leaves)))
 }
 
+/// The leaves a parallel task answers (see [`by_leaf`]): sim300k's 16 k leaves in 129 tasks.
+const LEAVES_PER_TASK: usize = 128;
+
 /// `width` values per point in tree order: each leaf's rows handed to `fill(input indices of
 /// the leaf's points, their rows, their values)`, leaves in parallel.
+///
+/// The leaves are answered in tasks of [`LEAVES_PER_TASK`], each task on its own: rayon's own
+/// split (a quarter of the leaves a task at 2 threads) can leave one thread idle while the other
+/// answers its last quarter, the leaves being of unequal cost (before the gathering cap, one
+/// thread idled for the last 28 % of sim300k's rows).
 fn by_leaf<T: Clone + Default + Send>(
     tree: &LeafTree,
     leaves: &[Node],
@@ -273,20 +295,28 @@ fn by_leaf<T: Clone + Default + Send>(
     fill: impl Fn(&[u32], &[Neighbor], &mut [T]) + Sync,
 ) -> Vec<T> {
     let mut out = vec![T::default(); tree.ids.len() * width];
-    let mut chunks = Vec::with_capacity(leaves.len());
+    let mut tasks = Vec::with_capacity(leaves.len().div_ceil(LEAVES_PER_TASK));
     let mut rest = out.as_mut_slice();
-    for leaf in leaves {
-        let (chunk, tail) = rest.split_at_mut((leaf.end - leaf.start) * width);
-        chunks.push(chunk);
+    // the leaves are in tree order: a task's values are one run of `out`
+    for task in leaves.chunks(LEAVES_PER_TASK) {
+        let points = task.iter().map(|leaf| leaf.end - leaf.start).sum::<usize>();
+        let (values, tail) = rest.split_at_mut(points * width);
+        tasks.push((task, values));
         rest = tail;
     }
-    chunks.into_par_iter().zip(leaves.par_iter()).for_each_init(
+    tasks.into_par_iter().with_max_len(1).for_each_init(
         || (Scratch::default(), Vec::new()),
-        |(scratch, rows), (values, &leaf)| {
-            rows.clear();
-            rows.resize((leaf.end - leaf.start) * k, Neighbor::default());
-            leaf_rows(tree, k, leaf, scratch, rows);
-            fill(&tree.ids[leaf.start..leaf.end], rows, values);
+        |(scratch, rows), (task, values)| {
+            let mut values = &mut values[..];
+            for &leaf in task {
+                let n = leaf.end - leaf.start;
+                rows.clear();
+                rows.resize(n * k, Neighbor::default());
+                leaf_rows(tree, k, leaf, scratch, rows);
+                let (these, tail) = std::mem::take(&mut values).split_at_mut(n * width);
+                fill(&tree.ids[leaf.start..leaf.end], rows, these);
+                values = tail;
+            }
         },
     );
     out
@@ -372,6 +402,19 @@ mod tests {
         check(&dup, 40);
         check(&random[..7], 20);
         check(&[], 5);
+    }
+
+    #[test]
+    fn sparse_leaves_beside_dense_points_are_exact() {
+        // a dense blob and a sparse line through it: the line's leaves reach the blob and are left
+        // to the tree search (more than GATHER_CAP times k points to gather)
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut points: Vec<Point3<f32>> = (0..3000)
+            .map(|_| Point3::new(0.01 * rng.random::<f32>(), 0.01 * rng.random::<f32>(), 0.01 * rng.random::<f32>()))
+            .collect();
+        points.extend((0..200).map(|i| Point3::new(-1.0 + 0.01 * i as f32, 0.005, 0.02 * rng.random::<f32>())));
+        check(&points, 3);
+        check(&points, 8);
     }
 
     #[test]
