@@ -1,16 +1,16 @@
 //! The `k` nearest neighbours of every point of a set at once (outlier removal, normals).
 //!
-//! The points are ordered into a [`LeafTree`] (median splits on the widest axis, 16-32 points a
+//! The points are ordered into a [`LeafTree`] (median splits on the widest axis, 24-48 points a
 //! leaf, one coordinate array per axis in tree order) and answered leaf by leaf. A leaf's first
 //! query is a tree search within a reach that surely holds its `k` nearest points: the `k`-th
 //! distance among its seed (the smallest subtree about it with `2k` points). Then the points within
-//! 1.3x that query's `k`-th distance of the leaf's box are gathered once ([`SPREAD`]: about 230
+//! 1.3x that query's `k`-th distance of the leaf's box are gathered once ([`SPREAD`]: about 240
 //! points at k = 20 on sim300k; a leaf that would gather more than [`GATHER_CAP`] times `k`, spread
 //! out beside denser points, is left to the tree search), and every other query of the leaf scans
 //! them: first within a guess of 1.15x the previous query's `k`-th distance, then within the whole
 //! gathered reach. A ball about the query that holds `k` points holds its `k` nearest, and the
 //! gathered points hold every point of any ball within the gathered reach, so the rows are exact;
-//! 92 % of sim300k's queries are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
+//! 91 % of sim300k's queries are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
 //! within the least, over the leaf's queries already answered, of their `k`-th distance plus the
 //! step to them (first a guess of 1.15x the `k`-th distance of the query giving it). A tree search
 //! starts below every ancestor whose other side is out of reach. Candidates are kept as one integer
@@ -159,13 +159,15 @@ fn search_root(tree: &LeafTree, path: &[(Node, usize)], leaf: Node, b: &Aabb, re
 
 /// The reach about a leaf's box within which its points are gathered once for all its queries,
 /// as a multiple of its first query's `k`-th distance. On sim300k at k = 20: 75 / 92 / 94 % of
-/// the queries answered from 188 / 226 / 267 gathered points at 1.1 / 1.3 / 1.5; normals fastest at
-/// 1.3 (BENCHMARKS.md 51).
+/// the queries answered from 188 / 226 / 267 gathered points at 1.1 / 1.3 / 1.5 (32-point leaves,
+/// no [`GATHER_CAP`]); normals fastest at 1.3 (BENCHMARKS.md 51), and still so with both (1.2 and
+/// 1.4 within noise).
 const SPREAD: f32 = 1.3;
 
 /// The most points a leaf gathers, as a multiple of `k` (1000 at k = 20): scanning more per query
-/// costs more than the tree search. Without it, 4 of sim300k's 16 k leaves gathered 130-500 k
-/// points each, 23 % of all the points scanned (BENCHMARKS.md 52).
+/// costs more than the tree search. Without it, 4 of sim300k's leaves (of 16 k, at 32 points a
+/// leaf) gathered 130-500 k points each, 23 % of all the points scanned; 265 of its 8 k leaves
+/// are left to the tree search (BENCHMARKS.md 52).
 const GATHER_CAP: usize = 50;
 
 /// The first reach tried for a query, as a multiple of a nearby answered query's `k`-th distance:
@@ -277,7 +279,7 @@ fn tree_for(points: &[Point3<f32>], k: usize) -> Result<Option<(LeafTree, Vec<No
     Ok(Some((tree, leaves)))
 }
 
-/// The leaves a parallel task answers (see [`by_leaf`]): sim300k's 16 k leaves in 129 tasks.
+/// The leaves a parallel task answers (see [`by_leaf`]): sim300k's 8 k leaves in 64 tasks.
 const LEAVES_PER_TASK: usize = 128;
 
 /// `width` values per point in tree order: each leaf's rows handed to `fill(input indices of
