@@ -10,11 +10,11 @@
 //! them: first within a guess of 1.15x the previous query's `k`-th distance, then within the whole
 //! gathered reach. A ball about the query that holds `k` points holds its `k` nearest, and the
 //! gathered points hold every point of any ball within the gathered reach, so the rows are exact;
-//! 91 % of sim300k's queries are answered so. The others (the reach did not hold `k` points) fall back to the tree search,
-//! within the least, over the leaf's queries already answered, of their `k`-th distance plus the
-//! step to them (first a guess of 1.15x the `k`-th distance of the query giving it). A tree search
-//! starts below every ancestor whose other side is out of reach. Candidates are kept as one integer
-//! (distance bits, index) that sorts without a comparator.
+//! 91 % of sim300k's queries are answered so. The others (the reach did not hold `k` points) fall
+//! back to the tree search, within the least, over the leaf's queries already answered, of their
+//! `k`-th distance plus the step to them (first a guess of 1.15x the `k`-th distance of the query
+//! giving it). A tree search starts below every ancestor whose other side is out of reach.
+//! Candidates are kept as one integer (distance bits, index) that sorts without a comparator.
 //!
 //! Each row holds the `k` points smallest by (squared distance, index), nearest first: the
 //! distances [`super::KdIndex::knn`] gives (computed the same way, `dx² + dy² + dz²` in f32), and
@@ -197,8 +197,8 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
         let (_, kth, _) = dist.select_nth_unstable_by(k - 1, f32::total_cmp);
         widen(kth.sqrt())
     };
-    // the gathered reach, once gathered (the first query answered)
-    let (mut spread, mut gathered) = (None, false);
+    // the gathered reach, once gathered (after the first query)
+    let mut spread = None;
     for (j, row) in (leaf.start..leaf.end).zip(rows.chunks_exact_mut(k)) {
         let q = [tree.xs[j], tree.ys[j], tree.zs[j]];
         // the leaf's gathered points hold every point within `spread` of the query: first a
@@ -256,10 +256,9 @@ fn leaf_rows(tree: &LeafTree, k: usize, leaf: Node, scratch: &mut Scratch, rows:
             *slot = neighbor(c);
         }
         done.push((q, row[k - 1].dist_sq.sqrt()));
-        if !gathered {
+        if done.len() == 1 {
             let r = SPREAD * row[k - 1].dist_sq.sqrt();
             let b = &tree.boxes[leaf.id];
-            gathered = true;
             // a leaf spread out beside denser points would gather thousands: left to the tree search
             spread =
                 tree.near_box(search_root(tree, &path, leaf, b, r * r), b, r * r, GATHER_CAP * k, scratch).then_some(r);

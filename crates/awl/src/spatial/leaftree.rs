@@ -68,8 +68,7 @@ impl Aabb {
 
     /// Squared distance from `q` (0 inside).
     pub(super) fn gap(&self, q: [f32; 3]) -> f32 {
-        let g = [0, 1, 2].map(|a| (self.lo[a] - q[a]).max(q[a] - self.hi[a]).max(0.0));
-        g[0] * g[0] + g[1] * g[1] + g[2] * g[2]
+        self.gap_box(&Self { lo: q, hi: q })
     }
 }
 
