@@ -2,6 +2,7 @@
 //! their own modules as free functions.
 
 use nalgebra::{Isometry3, Point3, Vector3};
+use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 
@@ -17,6 +18,10 @@ pub struct PointCloud {
     /// 8-bit RGB colors, one per point.
     pub colors: Option<Vec<[u8; 3]>>,
 }
+
+/// Points a task of a parallel pass over a cloud's positions gets at least (a pass this cheap
+/// gains nothing from finer tasks).
+const SCAN_CHUNK: usize = 1 << 14;
 
 /// Axis-aligned bounds of a cloud, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,28 +60,70 @@ impl PointCloud {
     /// # Errors
     /// [`Error::Invalid`] naming `what` and the first offending index.
     pub fn validate(&self, what: &str) -> Result<()> {
-        let n = self.points.len();
-        if let Some(normals) = &self.normals {
-            if normals.len() != n {
-                return Err(Error::invalid(what, format!("{} normals for {n} points", normals.len())));
-            }
-        }
-        if let Some(colors) = &self.colors {
-            if colors.len() != n {
-                return Err(Error::invalid(what, format!("{} colors for {n} points", colors.len())));
-            }
-        }
-        if let Some(i) = self.points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+        self.validate_lengths(what)?;
+        let bad = |p: &Point3<f32>| !p.coords.iter().all(|v| v.is_finite());
+        // by chunks: rayon's per-item `position_first` costs far more than the test itself
+        let chunk = self.points.par_chunks(SCAN_CHUNK).position_first(|c| c.iter().any(bad));
+        if let Some(i) =
+            chunk.and_then(|c| self.points[c * SCAN_CHUNK..].iter().position(bad).map(|j| c * SCAN_CHUNK + j))
+        {
             return Err(Error::invalid(what, format!("point {i} is not finite: {:?}", self.points[i])));
         }
         Ok(())
     }
 
-    /// Axis-aligned bounds, or `None` for an empty cloud.
+    /// [`PointCloud::validate`] and [`PointCloud::bounds`] in one pass over the points.
+    ///
+    /// # Errors
+    /// As [`PointCloud::validate`].
+    pub fn validated_bounds(&self, what: &str) -> Result<Option<Bounds>> {
+        self.validate_lengths(what)?;
+        match self.bounds_and_finite() {
+            Some((_, false)) => self.validate(what).map(|()| None),
+            found => Ok(found.map(|(bounds, _)| bounds)),
+        }
+    }
+
+    fn validate_lengths(&self, what: &str) -> Result<()> {
+        let n = self.points.len();
+        if let Some(normals) = &self.normals
+            && normals.len() != n
+        {
+            return Err(Error::invalid(what, format!("{} normals for {n} points", normals.len())));
+        }
+        if let Some(colors) = &self.colors
+            && colors.len() != n
+        {
+            return Err(Error::invalid(what, format!("{} colors for {n} points", colors.len())));
+        }
+        Ok(())
+    }
+
+    /// Axis-aligned bounds, or `None` for an empty cloud (of its finite coordinates: a NaN is
+    /// skipped). Parallel; min and max do not depend on the order they are taken in.
     pub fn bounds(&self) -> Option<Bounds> {
-        let first = *self.points.first()?;
-        let (min, max) = self.points.iter().fold((first, first), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
-        Some(Bounds { min, max })
+        self.bounds_and_finite().map(|(bounds, _)| bounds)
+    }
+
+    /// The bounds, and whether every coordinate is finite.
+    fn bounds_and_finite(&self) -> Option<(Bounds, bool)> {
+        type Scan = ([f32; 3], [f32; 3], bool);
+        let empty: Scan = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3], true);
+        let join = |(lo, hi, finite): Scan, (l, h, f): Scan| -> Scan {
+            // compare-and-select (one instruction each; a NaN never wins), not `f32::min`
+            let (min, max) = (|a: f32, b: f32| if b < a { b } else { a }, |a: f32, b: f32| if b > a { b } else { a });
+            (std::array::from_fn(|a| min(lo[a], l[a])), std::array::from_fn(|a| max(hi[a], h[a])), finite & f)
+        };
+        let (lo, hi, finite) = self
+            .points
+            .par_chunks(SCAN_CHUNK)
+            .map(|chunk| {
+                chunk.iter().fold(empty, |acc, p| {
+                    join(acc, ([p.x, p.y, p.z], [p.x, p.y, p.z], p.coords.iter().all(|v| v.is_finite())))
+                })
+            })
+            .reduce(|| empty, join);
+        (!self.points.is_empty()).then(|| (Bounds { min: lo.into(), max: hi.into() }, finite))
     }
 
     /// The cloud moved by `to_from_from` (positions and normals), computed in f64.
@@ -149,5 +196,22 @@ mod tests {
         let cloud = PointCloud::from_points(vec![Point3::new(0.0, f32::NAN, 0.0)]);
         let err = cloud.validate("model.ply").unwrap_err().to_string();
         assert!(err.contains("model.ply") && err.contains("point 0"), "{err}");
+        // past the first parallel chunk, by both checks; the bounds skip the NaN
+        let mut points = vec![Point3::new(1.0, -2.0, 3.0); 40_000];
+        points[7] = Point3::new(-1.0, 2.0, 0.5);
+        points[40_000 - 2].y = f32::INFINITY;
+        points[40_000 - 1].z = f32::NAN;
+        let cloud = PointCloud::from_points(points);
+        for err in [cloud.validate("c").unwrap_err(), cloud.validated_bounds("c").unwrap_err()] {
+            assert!(err.to_string().contains("point 39998 is not finite"), "{err}");
+        }
+        let b = cloud.bounds().expect("bounds");
+        assert_eq!((b.min, b.max), (Point3::new(-1.0, -2.0, 0.5), Point3::new(1.0, f32::INFINITY, 3.0)));
+        let mut finite = cloud.clone();
+        finite.points.truncate(40_000 - 2);
+        assert_eq!(
+            finite.validated_bounds("c").expect("valid"),
+            Some(Bounds { min: b.min, max: Point3::new(1.0, 2.0, 3.0) })
+        );
     }
 }

@@ -116,8 +116,9 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
 /// (then the output would be the input, point for point and bit for bit).
 fn runs(cloud: &PointCloud, params: &VoxelParams) -> Result<Option<(Vec<usize>, Vec<usize>)>> {
     params.validate()?;
-    cloud.validate("voxel downsample input")?;
-    let Some(bounds) = cloud.bounds() else { return Ok(Some((Vec::new(), vec![0]))) };
+    let Some(bounds) = cloud.validated_bounds("voxel downsample input")? else {
+        return Ok(Some((Vec::new(), vec![0])));
+    };
     let grid = Grid::new(&bounds, params.voxel_size_m)?;
     Ok((!grid.one_per_voxel_in_order(&cloud.points)).then(|| grid.sorted_runs(&cloud.points)))
 }
@@ -348,27 +349,45 @@ impl Grid {
     /// u64, and a stable LSD radix sort on the key bits, which keeps equal keys in index order.
     fn runs_packed(&self, points: &[Point3<f32>], idx_bits: u32) -> (Vec<usize>, Vec<usize>) {
         let [bx, by, bz] = self.bits;
-        let mut packed: Vec<u64> = points
-            .par_iter()
-            .enumerate()
-            .map(|(i, p)| {
-                let k = self.key(p);
-                let [x, y, z] = [0, 1, 2].map(|a| k[a].abs_diff(self.lo[a]));
-                shl(x, by + bz + idx_bits) | shl(y, bz + idx_bits) | shl(z, idx_bits) | i as u64
-            })
-            .collect();
+        let shifts = [by + bz + idx_bits, bz + idx_bits, idx_bits];
+        let mut packed = vec![0u64; points.len()];
+        packed.par_chunks_mut(RUN_SCAN_MIN).zip(points.par_chunks(RUN_SCAN_MIN)).enumerate().for_each(
+            |(c, (out, chunk))| {
+                for (i, (o, p)) in (c * RUN_SCAN_MIN..).zip(out.iter_mut().zip(chunk)) {
+                    let k = self.key(p);
+                    *o = (0..3).fold(i as u64, |v, a| v | shl(k[a].abs_diff(self.lo[a]), shifts[a]));
+                }
+            },
+        );
         radix_sort(&mut packed, idx_bits, idx_bits + bx + by + bz);
         let idx_mask = shl(1, idx_bits).wrapping_sub(1);
-        let mut starts = Vec::new();
-        let mut previous = None;
-        for (pos, v) in packed.iter_mut().enumerate() {
-            let key = *v & !idx_mask;
-            if previous != Some(key) {
-                starts.push(pos);
-                previous = Some(key);
-            }
-            *v &= idx_mask;
-        }
+        // By chunks, each a sequential scan (rayon's per-item `filter` costs more than the test),
+        // each starting from the key before it.
+        let before: Vec<Option<u64>> = (0..packed.len().div_ceil(RUN_SCAN_MIN))
+            .map(|c| (c * RUN_SCAN_MIN).checked_sub(1).map(|p| packed[p] & !idx_mask))
+            .collect();
+        let mut starts = packed
+            .par_chunks_mut(RUN_SCAN_MIN)
+            .zip(before)
+            .enumerate()
+            .map(|(c, (chunk, previous))| {
+                // branch-free: every position is written, and kept when its key is new
+                let mut starts = vec![0; chunk.len()];
+                // (the first chunk's first key differs from its complement)
+                let mut previous = previous.unwrap_or(!(chunk[0] & !idx_mask));
+                let mut kept = 0;
+                for (pos, v) in (c * RUN_SCAN_MIN..).zip(chunk) {
+                    let key = *v & !idx_mask;
+                    starts[kept] = pos;
+                    kept += usize::from(key != previous);
+                    previous = key;
+                    *v &= idx_mask;
+                }
+                starts.truncate(kept);
+                starts
+            })
+            .collect::<Vec<_>>()
+            .concat();
         starts.push(points.len());
         // Same size and alignment: collected in place, no second buffer.
         (packed.into_iter().map(|i| i as usize).collect(), starts)
@@ -390,6 +409,9 @@ impl Grid {
         (order, starts)
     }
 }
+
+/// Values a task of a parallel pass over the sorted keys gets at least.
+const RUN_SCAN_MIN: usize = 1 << 14;
 
 /// Values a chunk of a parallel radix pass gets at least; fewer values sort in one chunk.
 const RADIX_MIN_CHUNK: usize = 1 << 16;
@@ -638,13 +660,16 @@ mod tests {
             .map(|_| Point3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() * 2.0, -rng.random::<f32>()))
             .collect();
         let bounds = PointCloud::from_points(points.clone()).bounds().expect("bounds");
-        let grid = Grid::new(&bounds, 0.1).expect("grid");
-        let (order, starts) = grid.runs_packed(&points, 15);
-        assert_eq!((order.clone(), starts.clone()), grid.runs_triples(&points));
-        assert_eq!(starts.len() - 1, 10 * 20 * 10);
-        for w in starts.windows(2) {
-            let run = &order[w[0]..w[1]];
-            assert!(run.windows(2).all(|r| r[0] < r[1] && grid.key(&points[r[0]]) == grid.key(&points[r[1]])));
+        // runs of about 15 points, and of about one (so runs start on the scan's chunk boundaries)
+        for (size, voxels) in [(0.1, Some(10 * 20 * 10)), (0.001, None)] {
+            let grid = Grid::new(&bounds, size).expect("grid");
+            let (order, starts) = grid.runs_packed(&points, 15);
+            assert_eq!((order.clone(), starts.clone()), grid.runs_triples(&points), "{size} m");
+            assert!(voxels.is_none_or(|v| starts.len() - 1 == v));
+            for w in starts.windows(2) {
+                let run = &order[w[0]..w[1]];
+                assert!(run.windows(2).all(|r| r[0] < r[1] && grid.key(&points[r[0]]) == grid.key(&points[r[1]])));
+            }
         }
     }
 
