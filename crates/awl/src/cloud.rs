@@ -19,9 +19,9 @@ pub struct PointCloud {
     pub colors: Option<Vec<[u8; 3]>>,
 }
 
-/// Points a task of a parallel pass over a cloud's positions gets at least (a pass this cheap
-/// gains nothing from finer tasks).
-const SCAN_CHUNK: usize = 1 << 14;
+/// Items a task of a cheap parallel pass (one test or one store per point, per key) gets at
+/// least: such a pass gains nothing from finer tasks.
+pub(crate) const SCAN_CHUNK: usize = 1 << 14;
 
 /// Axis-aligned bounds of a cloud, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,6 +61,12 @@ impl PointCloud {
     /// [`Error::Invalid`] naming `what` and the first offending index.
     pub fn validate(&self, what: &str) -> Result<()> {
         self.validate_lengths(what)?;
+        self.validate_finite(what)
+    }
+
+    /// The finiteness half of [`PointCloud::validate`]: the first point with a non-finite
+    /// coordinate, by index.
+    fn validate_finite(&self, what: &str) -> Result<()> {
         let bad = |p: &Point3<f32>| !p.coords.iter().all(|v| v.is_finite());
         // by chunks: rayon's per-item `position_first` costs far more than the test itself
         let chunk = self.points.par_chunks(SCAN_CHUNK).position_first(|c| c.iter().any(bad));
@@ -79,7 +85,8 @@ impl PointCloud {
     pub fn validated_bounds(&self, what: &str) -> Result<Option<Bounds>> {
         self.validate_lengths(what)?;
         match self.bounds_and_finite() {
-            Some((_, false)) => self.validate(what).map(|()| None),
+            // (a coordinate is not finite: its error names the first such point)
+            Some((_, false)) => self.validate_finite(what).map(|()| None),
             found => Ok(found.map(|(bounds, _)| bounds)),
         }
     }

@@ -24,7 +24,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::cloud::{Bounds, PointCloud};
+use crate::cloud::{Bounds, PointCloud, SCAN_CHUNK};
 use crate::error::{Error, Result};
 
 /// Largest |voxel coordinate| accepted; beyond it a voxel size is absurdly small for the cloud.
@@ -351,9 +351,9 @@ impl Grid {
         let [bx, by, bz] = self.bits;
         let shifts = [by + bz + idx_bits, bz + idx_bits, idx_bits];
         let mut packed = vec![0u64; points.len()];
-        packed.par_chunks_mut(RUN_SCAN_MIN).zip(points.par_chunks(RUN_SCAN_MIN)).enumerate().for_each(
+        packed.par_chunks_mut(SCAN_CHUNK).zip(points.par_chunks(SCAN_CHUNK)).enumerate().for_each(
             |(c, (out, chunk))| {
-                for (i, (o, p)) in (c * RUN_SCAN_MIN..).zip(out.iter_mut().zip(chunk)) {
+                for (i, (o, p)) in (c * SCAN_CHUNK..).zip(out.iter_mut().zip(chunk)) {
                     let k = self.key(p);
                     *o = (0..3).fold(i as u64, |v, a| v | shl(k[a].abs_diff(self.lo[a]), shifts[a]));
                 }
@@ -363,11 +363,11 @@ impl Grid {
         let idx_mask = shl(1, idx_bits).wrapping_sub(1);
         // By chunks, each a sequential scan (rayon's per-item `filter` costs more than the test),
         // each starting from the key before it.
-        let before: Vec<Option<u64>> = (0..packed.len().div_ceil(RUN_SCAN_MIN))
-            .map(|c| (c * RUN_SCAN_MIN).checked_sub(1).map(|p| packed[p] & !idx_mask))
+        let before: Vec<Option<u64>> = (0..packed.len().div_ceil(SCAN_CHUNK))
+            .map(|c| (c * SCAN_CHUNK).checked_sub(1).map(|p| packed[p] & !idx_mask))
             .collect();
         let mut starts = packed
-            .par_chunks_mut(RUN_SCAN_MIN)
+            .par_chunks_mut(SCAN_CHUNK)
             .zip(before)
             .enumerate()
             .map(|(c, (chunk, previous))| {
@@ -376,7 +376,7 @@ impl Grid {
                 // (the first chunk's first key differs from its complement)
                 let mut previous = previous.unwrap_or(!(chunk[0] & !idx_mask));
                 let mut kept = 0;
-                for (pos, v) in (c * RUN_SCAN_MIN..).zip(chunk) {
+                for (pos, v) in (c * SCAN_CHUNK..).zip(chunk) {
                     let key = *v & !idx_mask;
                     starts[kept] = pos;
                     kept += usize::from(key != previous);
@@ -409,9 +409,6 @@ impl Grid {
         (order, starts)
     }
 }
-
-/// Values a task of a parallel pass over the sorted keys gets at least.
-const RUN_SCAN_MIN: usize = 1 << 14;
 
 /// Values a chunk of a parallel radix pass gets at least; fewer values sort in one chunk.
 const RADIX_MIN_CHUNK: usize = 1 << 16;
