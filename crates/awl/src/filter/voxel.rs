@@ -114,7 +114,7 @@ pub fn downsample_with_counts(cloud: &PointCloud, params: &VoxelParams) -> Resul
 /// The point indices sorted by voxel and the start of each voxel's run (plus the end), or `None`
 /// when the cloud is already its own down-sampling: every point alone in its voxel, in key order
 /// (then the output would be the input, point for point and bit for bit).
-fn runs(cloud: &PointCloud, params: &VoxelParams) -> Result<Option<(Vec<usize>, Vec<usize>)>> {
+pub(super) fn runs(cloud: &PointCloud, params: &VoxelParams) -> Result<Option<(Vec<usize>, Vec<usize>)>> {
     params.validate()?;
     let Some(bounds) = cloud.validated_bounds("voxel downsample input")? else {
         return Ok(Some((Vec::new(), vec![0])));
@@ -249,7 +249,7 @@ impl VoxelAccumulator {
 
 /// The occupied key range of a cloud: `lo` is the smallest key per axis, `bits` the bits each
 /// axis's offset `key - lo` needs.
-struct Grid {
+pub(super) struct Grid {
     size: f64,
     /// `1 / size`: see [`Grid::key`].
     inv: f64,
@@ -272,7 +272,7 @@ fn shl(v: u64, s: u32) -> u64 {
 }
 
 impl Grid {
-    fn new(bounds: &Bounds, size: f64) -> Result<Self> {
+    pub(super) fn new(bounds: &Bounds, size: f64) -> Result<Self> {
         let floor = |v: f32| -> Result<i64> {
             let f = (f64::from(v) / size).floor();
             if f.abs() <= MAX_KEY {
@@ -299,7 +299,7 @@ impl Grid {
     /// product lies that close to an integer, and only then is the division done. Same keys, bit
     /// for bit, without a division per coordinate.
     #[inline]
-    fn key(&self, p: &Point3<f32>) -> [i64; 3] {
+    pub(super) fn key(&self, p: &Point3<f32>) -> [i64; 3] {
         let mut clear = true;
         let keys = [p.x, p.y, p.z].map(|x| {
             let q = f64::from(x) * self.inv;
@@ -506,12 +506,12 @@ fn radix_pass_chunked(
     true
 }
 
-fn mean_point(points: &[Point3<f32>], run: &[usize]) -> Point3<f32> {
+pub(super) fn mean_point(points: &[Point3<f32>], run: &[usize]) -> Point3<f32> {
     let sum = run.iter().fold(Vector3::<f64>::zeros(), |acc, &i| acc + points[i].coords.cast::<f64>());
     Point3::from(sum / run.len() as f64).cast::<f32>()
 }
 
-fn mean_normal(normals: &[Vector3<f32>], run: &[usize]) -> Vector3<f32> {
+pub(super) fn mean_normal(normals: &[Vector3<f32>], run: &[usize]) -> Vector3<f32> {
     if let [one] = run {
         // Kept as it is (not re-normalised): so a down-sampled cloud is its own down-sampling.
         return normals[*one];
@@ -526,7 +526,7 @@ fn mean_normal(normals: &[Vector3<f32>], run: &[usize]) -> Vector3<f32> {
     }
 }
 
-fn mean_color(colors: &[[u8; 3]], run: &[usize]) -> [u8; 3] {
+pub(super) fn mean_color(colors: &[[u8; 3]], run: &[usize]) -> [u8; 3] {
     let n = run.len() as u64;
     let mut sum = [0u64; 3];
     for &i in run {

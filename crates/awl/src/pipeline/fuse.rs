@@ -6,12 +6,14 @@ use nalgebra::Isometry3;
 
 use super::config::FuseConfig;
 use super::isolate::{drop_floor, keep_object};
-use super::multiview::register_views;
-use super::prepare::{PreparedView, Views, prepare};
+use super::multiview::{Registered, register_views};
+use super::prepare::{Preparer, Views, prepare, stage_reports};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
+use super::stream::register_as_prepared;
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::filter::voxel::downsample;
+use crate::filter::voxel::VoxelParams;
+use crate::filter::voxel_merge::VoxelMerge;
 use crate::io::scan::Scan;
 use crate::smooth::mls;
 
@@ -43,24 +45,57 @@ fn timed<T>(
     Ok(value)
 }
 
-/// The views' measured points at their registered poses, one world-frame cloud of `points` points.
-/// Each view is moved in place and freed once copied, so the views and their merge are never held
-/// twice.
-fn world_cloud(views: Views, poses: &[Option<Isometry3<f64>>], points: usize) -> PointCloud {
-    // The registration's copies (smoothed, when `registration_smoothing_m` is set) freed first.
-    let measured: Vec<(PointCloud, Isometry3<f64>)> =
-        views.into_iter().zip(poses).filter_map(|(view, pose)| Some((view.ok()?.into_measured(), (*pose)?))).collect();
-    let mut clouds = measured.into_iter().map(|(cloud, pose)| cloud.into_transformed(&pose));
-    // The first view's buffers, grown once to hold them all.
-    let Some(mut all) = clouds.next() else { return PointCloud::default() };
-    let more = points.saturating_sub(all.len());
-    all.points.reserve_exact(more);
-    all.normals.iter_mut().for_each(|n| n.reserve_exact(more));
-    all.colors.iter_mut().for_each(|c| c.reserve_exact(more));
-    for cloud in clouds {
-        all.extend(&cloud);
+/// The views' measured points at their registered poses (world frame), to be merged at `voxel`.
+/// Each view is moved in place, its registration copy (smoothed, when `registration_smoothing_m`
+/// is set) freed first.
+fn world_parts(views: Views, poses: &[Option<Isometry3<f64>>], voxel: &VoxelParams) -> Result<VoxelMerge> {
+    let mut parts = VoxelMerge::new(voxel)?;
+    for (i, (view, pose)) in views.into_iter().zip(poses).enumerate() {
+        if let (Ok(view), Some(pose)) = (view, pose) {
+            parts.add(i, view.into_measured().into_transformed(pose))?;
+        }
     }
-    all
+    Ok(parts)
+}
+
+/// Prepares and registers the views: as they are prepared when the poses are final once each view
+/// is judged (no refinement rounds, no joint refinement; see `stream`), otherwise all views first.
+/// Returns the registration and the merged views' measured points (world frame), to be merged.
+fn registered_views(
+    preparer: &Preparer<'_>,
+    config: &FuseConfig,
+    stages: &mut Vec<StageReport>,
+    progress: Progress<'_>,
+) -> Result<(Registered, VoxelMerge)> {
+    let r = &config.registration;
+    if r.refine_rounds == 0 && r.joint_levels.is_empty() {
+        progress("prepare and register views", 0, STAGES);
+        let streamed = register_as_prepared(preparer, r, &config.merge_voxel)?;
+        stages.extend(stage_reports(&streamed.tallies, None));
+        let merged = streamed.registered.poses.iter().filter(|p| p.is_some()).count();
+        stages.push(StageReport {
+            name: "register".into(),
+            points_in: 0,
+            points_out: merged,
+            seconds: streamed.register_seconds,
+        });
+        return Ok((streamed.registered, streamed.parts));
+    }
+    progress("prepare views", 0, STAGES);
+    let views = prepare(preparer, stages);
+    if views.iter().all(|v| v.is_err()) {
+        let reasons: Vec<String> =
+            views.iter().enumerate().filter_map(|(i, v)| v.as_ref().err().map(|e| format!("view {i}: {e}"))).collect();
+        return Err(Error::invalid("scan", format!("no usable view ({})", reasons.join("; "))));
+    }
+    progress("register", 4, STAGES);
+    let registered = timed(stages, "register", 0, || {
+        let r = register_views(&views, r, &config.merge_voxel)?;
+        let merged = r.poses.iter().filter(|p| p.is_some()).count();
+        Ok((r, merged))
+    })?;
+    let parts = world_parts(views, &registered.poses, &config.merge_voxel)?;
+    Ok((registered, parts))
 }
 
 /// Runs the whole modeling pipeline on `scan` (see the module docs of `pipeline`).
@@ -73,30 +108,17 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     let start = Instant::now();
     let mut stages = Vec::new();
     let mut warnings = Vec::new();
-    progress("prepare views", 0, STAGES);
-    let (views, focus) = prepare(scan, config, &mut stages);
+    let preparer = Preparer::new(scan, config);
+    let focus = preparer.focus;
     if config.roi.radius_m.is_some() && focus.is_none() {
         warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
     }
-    for (i, v) in views.iter().enumerate() {
-        if let Err(e) = v {
-            warnings.push(format!("view {i} skipped: {e}"));
-        }
-    }
-    if views.iter().all(|v| v.is_err()) {
-        let reasons: Vec<String> =
-            views.iter().enumerate().filter_map(|(i, v)| v.as_ref().err().map(|e| format!("view {i}: {e}"))).collect();
-        return Err(Error::invalid("scan", format!("no usable view ({})", reasons.join("; "))));
-    }
-    if views.iter().filter(|v| v.is_ok()).count() == 1 {
+    let (registered, parts) = registered_views(&preparer, config, &mut stages, progress)?;
+    let skipped = registered.reports.iter().filter(|r| r.status == ViewStatus::Skipped);
+    warnings.extend(skipped.map(|r| format!("view {} skipped: {}", r.index, r.reason)));
+    if registered.reports.iter().filter(|r| r.status != ViewStatus::Skipped).count() == 1 {
         warnings.push("only one usable view: nothing to register, the model is that view alone".into());
     }
-    progress("register", 4, STAGES);
-    let registered = timed(&mut stages, "register", 0, || {
-        let r = register_views(&views, &config.registration, &config.merge_voxel)?;
-        let merged = r.poses.iter().filter(|p| p.is_some()).count();
-        Ok((r, merged))
-    })?;
     warnings.extend(registered.warnings.iter().cloned());
     for r in &registered.reports {
         match r.status {
@@ -108,14 +130,8 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         }
     }
     progress("merge", 5, STAGES);
-    let merged_in: usize = views
-        .iter()
-        .zip(&registered.poses)
-        .filter_map(|(v, p)| p.and(v.as_ref().ok()))
-        .map(PreparedView::measured_len)
-        .sum();
-    let merged = timed(&mut stages, "merge", merged_in, || {
-        let model = downsample(&world_cloud(views, &registered.poses, merged_in), &config.merge_voxel)?;
+    let merged = timed(&mut stages, "merge", parts.len(), || {
+        let model = parts.downsample()?;
         let n = model.len();
         Ok((model, n))
     })?;

@@ -12,6 +12,7 @@ mod isolate;
 mod multiview;
 mod prepare;
 pub mod report;
+mod stream;
 
 pub use config::{AcceptanceRule, FuseConfig, RejectPolicy, RoiConfig};
 pub use fuse::{FuseOutput, Progress, fuse};

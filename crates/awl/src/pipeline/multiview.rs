@@ -64,7 +64,7 @@ fn judge(rule: &AcceptanceRule, r: &IcpResult, moved: (f64, f64)) -> std::result
     Ok(())
 }
 
-fn blank_report(index: usize, view: &std::result::Result<PreparedView, String>) -> ViewReport {
+pub(super) fn blank_report(index: usize, view: &std::result::Result<PreparedView, String>) -> ViewReport {
     let (status, reason, points, seed) = match view {
         Ok(v) => (ViewStatus::Excluded, String::new(), v.cloud.len(), Some(rows_from_isometry(&v.seed))),
         Err(e) => (ViewStatus::Skipped, e.clone(), 0, None),
@@ -96,6 +96,44 @@ fn record(report: &mut ViewReport, r: &IcpResult) {
     report.levels = r.levels.clone();
 }
 
+/// Marks the anchor's report.
+pub(super) fn make_anchor(report: &mut ViewReport) {
+    report.status = ViewStatus::Anchor;
+    report.reason = "first usable view: fixes the model frame".into();
+}
+
+/// The pose a view is merged at after its registration `result` (`None`: left out), by the
+/// acceptance rule and the reject policy; its report filled in.
+pub(super) fn settle(
+    config: &RegistrationConfig,
+    view: &PreparedView,
+    result: &IcpResult,
+    report: &mut ViewReport,
+) -> Option<Isometry3<f64>> {
+    record(report, result);
+    match judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)) {
+        Ok(()) => {
+            report.status = ViewStatus::Accepted;
+            Some(result.target_from_source)
+        }
+        Err(reason) => {
+            report.reason = reason;
+            (config.on_reject == RejectPolicy::KeepSeed).then(|| {
+                report.status = ViewStatus::SeedKept;
+                view.seed
+            })
+        }
+    }
+}
+
+/// Writes a merged view's final `pose` and its correction from the seed into its report.
+pub(super) fn place(report: &mut ViewReport, view: &PreparedView, pose: &Isometry3<f64>) {
+    let (dt, dr) = correction(view, &view.seed, pose);
+    report.correction_mm = dt * 1e3;
+    report.correction_deg = dr.to_degrees();
+    report.pose = Some(rows_from_isometry(pose));
+}
+
 /// The merged model of the views in `members` at `poses`, down-sampled.
 fn model_of(
     views: &Views,
@@ -115,30 +153,30 @@ fn model_of(
 /// The growing model as the ICP sees it: the merged views down-sampled at each ICP level's voxel
 /// size (the model's own voxel size for a level that does not down-sample), each kept up to date
 /// view by view instead of down-sampling the whole model again for every view and level.
-struct LevelModel {
+pub(super) struct LevelModel {
     levels: Vec<VoxelAccumulator>,
 }
 
 impl LevelModel {
-    fn new(icp: &IcpParams, voxel: &VoxelParams) -> Result<Self> {
+    pub(super) fn new(icp: &IcpParams, voxel: &VoxelParams) -> Result<Self> {
         let at = |v: f64| if v > 0.0 { VoxelParams { voxel_size_m: v } } else { *voxel };
         let levels = icp.levels.iter().map(|l| VoxelAccumulator::new(&at(l.voxel_m))).collect::<Result<_>>()?;
         Ok(Self { levels })
     }
 
-    fn add(&mut self, cloud: &PointCloud) -> Result<()> {
+    pub(super) fn add(&mut self, cloud: &PointCloud) -> Result<()> {
         use rayon::prelude::*;
         self.levels.par_iter_mut().try_for_each(|l| l.add(cloud))
     }
 
-    fn levels(&self) -> Vec<&PointCloud> {
+    pub(super) fn levels(&self) -> Vec<&PointCloud> {
         self.levels.iter().map(VoxelAccumulator::cloud).collect()
     }
 }
 
-/// The unregistered view whose seed camera is nearest to a merged view's camera (ties: lowest index).
-fn next_view(views: &Views, remaining: &[usize], merged: &[usize]) -> usize {
-    let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
+/// The position in `remaining` of the unregistered view whose seed camera (`centre` of a view
+/// index) is nearest to a merged view's camera (ties: the first).
+pub(super) fn next_view(centre: impl Fn(usize) -> Vector3<f64>, remaining: &[usize], merged: &[usize]) -> usize {
     let mut best = (f64::INFINITY, 0);
     for (pos, &i) in remaining.iter().enumerate() {
         let d = merged.iter().map(|&m| (centre(i) - centre(m)).norm()).fold(f64::INFINITY, f64::min);
@@ -163,31 +201,18 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
     let anchor = remaining.remove(0);
     let seed_of = |i: usize| views[i].as_ref().map(|v| v.seed).unwrap_or_else(|_| Isometry3::identity());
     poses[anchor] = Some(seed_of(anchor));
-    reports[anchor].status = ViewStatus::Anchor;
-    reports[anchor].reason = "first usable view: fixes the model frame".into();
+    make_anchor(&mut reports[anchor]);
     let mut merged = vec![anchor];
     let mut model = LevelModel::new(&config.icp, voxel)?;
     if let Ok(view) = &views[anchor] {
         model.add(&view.cloud.transformed(&seed_of(anchor)))?;
     }
     while !remaining.is_empty() {
-        let i = remaining.remove(next_view(views, &remaining, &merged));
+        let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
+        let i = remaining.remove(next_view(centre, &remaining, &merged));
         let Ok(view) = &views[i] else { continue };
         let result = register_levels(&view.cloud, &model.levels(), &view.seed, &config.icp)?;
-        record(&mut reports[i], &result);
-        match judge(&config.accept, &result, correction(view, &view.seed, &result.target_from_source)) {
-            Ok(()) => {
-                poses[i] = Some(result.target_from_source);
-                reports[i].status = ViewStatus::Accepted;
-            }
-            Err(reason) => {
-                reports[i].reason = reason;
-                if config.on_reject == RejectPolicy::KeepSeed {
-                    poses[i] = Some(view.seed);
-                    reports[i].status = ViewStatus::SeedKept;
-                }
-            }
-        }
+        poses[i] = settle(config, view, &result, &mut reports[i]);
         if let Some(pose) = poses[i] {
             model.add(&view.cloud.transformed(&pose))?;
             merged.push(i);
@@ -199,10 +224,7 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
     let joint = refine_joint(views, config, anchor, &mut poses, &reports, &mut warnings)?;
     for (i, report) in reports.iter_mut().enumerate() {
         if let (Some(pose), Ok(view)) = (poses[i], &views[i]) {
-            let (dt, dr) = correction(view, &view.seed, &pose);
-            report.correction_mm = dt * 1e3;
-            report.correction_deg = dr.to_degrees();
-            report.pose = Some(rows_from_isometry(&pose));
+            place(report, view, &pose);
         }
     }
     Ok(Registered { poses, reports, joint, warnings })

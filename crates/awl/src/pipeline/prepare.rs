@@ -40,11 +40,6 @@ impl PreparedView {
     pub(crate) fn into_measured(self) -> PointCloud {
         self.measured.unwrap_or(self.cloud)
     }
-
-    /// How many points [`PreparedView::into_measured`] gives.
-    pub(crate) fn measured_len(&self) -> usize {
-        self.measured.as_ref().unwrap_or(&self.cloud).len()
-    }
 }
 
 /// One entry per scan view: the prepared view, or why it cannot be used.
@@ -54,7 +49,7 @@ pub(crate) type Views = Vec<std::result::Result<PreparedView, String>>;
 const STAGES: [&str; 4] = ["load", "roi", "voxel + outliers + normals", "plane normals"];
 
 /// One view's points in and out and its time, per stage (`None`: the stage did not run on it).
-type Tally = [Option<(usize, usize, f64)>; 4];
+pub(crate) type Tally = [Option<(usize, usize, f64)>; 4];
 
 /// Runs stage `k` on `view`: its points in and out and its time go to `tally`.
 fn timed(
@@ -160,47 +155,84 @@ fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<Prepar
     Ok(PreparedView { cloud, ..view })
 }
 
-/// Loads and prepares every view; failures are kept per view as messages. Returns the focus point
-/// used for the region of interest, if any. Each view goes through all the stages in one pass, so
-/// the raw views never pile up; a stage's reported time is the prepare's wall time times the
-/// stage's share of the per-view work.
-pub(crate) fn prepare(
-    scan: &Scan,
-    config: &FuseConfig,
-    reports: &mut Vec<StageReport>,
-) -> (Views, Option<Point3<f64>>) {
-    let start = Instant::now();
-    let rays = scan.camera.map(|c| c.intrinsics.ray_table());
-    let (width, height) = scan.camera.map_or((0, 0), |c| {
-        every_nth_grid(c.intrinsics.width as usize, c.intrinsics.height as usize, config.pixel_step)
-    });
-    let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
-    let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
-    let roi = config.roi.radius_m.zip(focus);
-    let (views, tallies): (Views, Vec<Tally>) = (0..scan.views.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut tally = Tally::default();
-            let view = prepare_view(scan, i, rays.as_deref(), config, roi, (width, height), &mut tally);
-            (view, tally)
-        })
-        .unzip();
+/// What the preparation of every view of a scan shares: the ray table, the grid of kept pixels,
+/// the region of interest.
+pub(crate) struct Preparer<'a> {
+    scan: &'a Scan,
+    config: &'a FuseConfig,
+    rays: Option<Vec<[f32; 2]>>,
+    /// The grid of the kept pixels (`pixel_step`), width and height.
+    grid: (usize, usize),
+    /// The region of interest: radius and focus point (world frame).
+    roi: Option<(f64, Point3<f64>)>,
+    /// The point the cameras look at (see [`focus_point`]), when a region of interest is asked for.
+    pub focus: Option<Point3<f64>>,
+}
+
+impl<'a> Preparer<'a> {
+    pub(crate) fn new(scan: &'a Scan, config: &'a FuseConfig) -> Self {
+        let rays = scan.camera.map(|c| c.intrinsics.ray_table());
+        let grid = scan.camera.map_or((0, 0), |c| {
+            every_nth_grid(c.intrinsics.width as usize, c.intrinsics.height as usize, config.pixel_step)
+        });
+        let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
+        let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
+        let roi = config.roi.radius_m.zip(focus);
+        Self { scan, config, rays, grid, roi, focus }
+    }
+
+    /// The number of views of the scan.
+    pub(crate) fn len(&self) -> usize {
+        self.scan.views.len()
+    }
+
+    /// View `i`'s recorded pose, `None` when it is not usable.
+    pub(crate) fn seed(&self, i: usize) -> Option<Isometry3<f64>> {
+        self.scan.world_from_camera(i).ok()
+    }
+
+    /// View `i` through the per-view stages, and its points and time per stage.
+    pub(crate) fn view(&self, i: usize) -> (std::result::Result<PreparedView, String>, Tally) {
+        let mut tally = Tally::default();
+        let view = prepare_view(self.scan, i, self.rays.as_deref(), self.config, self.roi, self.grid, &mut tally);
+        (view, tally)
+    }
+}
+
+/// The per-view stages' reports from the views' tallies: each stage's points summed over the views
+/// and its time, the views' time in it summed, or when `wall` is given (the views prepared in
+/// parallel), that wall time times the stage's share of the per-view work.
+pub(crate) fn stage_reports(tallies: &[Tally], wall: Option<f64>) -> Vec<StageReport> {
     let per_view: f64 = tallies.iter().flatten().flatten().map(|t| t.2).sum();
-    let wall = start.elapsed().as_secs_f64();
+    let scale = match wall {
+        Some(wall) if per_view > 0.0 => wall / per_view,
+        Some(_) => 0.0,
+        None => 1.0,
+    };
+    let mut reports = Vec::new();
     for (k, name) in STAGES.iter().enumerate() {
         let ran: Vec<_> = tallies.iter().filter_map(|t| t[k]).collect();
         if ran.is_empty() && k != 0 {
             continue;
         }
-        let seconds: f64 = ran.iter().map(|t| t.2).sum();
         reports.push(StageReport {
             name: (*name).into(),
             points_in: ran.iter().map(|t| t.0).sum(),
             points_out: ran.iter().map(|t| t.1).sum(),
-            seconds: if per_view > 0.0 { wall * seconds / per_view } else { 0.0 },
+            seconds: scale * ran.iter().map(|t| t.2).sum::<f64>(),
         });
     }
-    (views, focus)
+    reports
+}
+
+/// Prepares every view in parallel (each through all the stages in one pass, so the raw views
+/// never pile up); failures are kept per view as messages. A stage's reported time is the
+/// prepare's wall time times the stage's share of the per-view work.
+pub(crate) fn prepare(preparer: &Preparer<'_>, reports: &mut Vec<StageReport>) -> Views {
+    let start = Instant::now();
+    let (views, tallies): (Views, Vec<Tally>) = (0..preparer.len()).into_par_iter().map(|i| preparer.view(i)).unzip();
+    reports.extend(stage_reports(&tallies, Some(start.elapsed().as_secs_f64())));
+    views
 }
 
 /// View `i` through the per-view stages: load, region of interest (`roi`: radius and focus point,

@@ -17,7 +17,10 @@ pub struct StageReport {
     pub points_in: usize,
     /// Points coming out.
     pub points_out: usize,
-    /// Wall time, seconds.
+    /// Wall time, seconds. Per-view stages: the prepare's wall time split by the stages' shares
+    /// of the work when the views are prepared first, or the views' times summed when each is
+    /// prepared while the one before it registers (no refinement rounds, no joint step; then the
+    /// per-view stages overlap `register` at 2 threads or more).
     pub seconds: f64,
 }
 
