@@ -1,6 +1,7 @@
 //! The `awl` command-line tool: parses arguments and hands each subcommand to its module.
 
 mod cmd;
+mod malloc;
 
 use clap::{Parser, Subcommand};
 
@@ -64,6 +65,7 @@ fn main() -> std::process::ExitCode {
         );
         return std::process::ExitCode::from(2);
     }
+    malloc::one_arena();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Calibrate(args) => cmd::calibrate::run(&args),

@@ -3,6 +3,7 @@
 //! Frames and units: transforms are `a_from_b` (maps points from frame b to frame a; `T_a_b` in
 //! files), metres and radians everywhere unless a name says otherwise. See `ARCHITECTURE.md`.
 #![deny(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod camera;
 pub mod cloud;
