@@ -30,8 +30,8 @@ pub(crate) struct Streamed {
     pub register_seconds: f64,
 }
 
-/// The views prepared by `preparer`, in the order `next` picks them (the view of `remaining` it
-/// names, removed from it), each prepared once: from the stash of earlier guesses, or now.
+/// The views as the registration takes them: each prepared once, from the stash of earlier
+/// guesses or now, its report started when it is taken.
 struct Feed<'p, 'a> {
     preparer: &'p Preparer<'a>,
     stash: BTreeMap<usize, std::result::Result<PreparedView, String>>,
