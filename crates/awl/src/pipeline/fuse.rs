@@ -6,7 +6,7 @@ use nalgebra::Isometry3;
 
 use super::config::FuseConfig;
 use super::isolate::{drop_floor, keep_object};
-use super::multiview::{Registered, register_views};
+use super::multiview::{Registered, no_usable_view, register_views};
 use super::prepare::{Preparer, Views, prepare, stage_reports};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
 use super::stream::register_as_prepared;
@@ -48,7 +48,7 @@ fn timed<T>(
 /// The views' measured points at their registered poses (world frame), to be merged at `voxel`.
 /// Each view is moved in place, its registration copy (smoothed, when `registration_smoothing_m`
 /// is set) freed first.
-fn world_parts(views: Views, poses: &[Option<Isometry3<f64>>], voxel: &VoxelParams) -> Result<VoxelMerge> {
+pub(super) fn world_parts(views: Views, poses: &[Option<Isometry3<f64>>], voxel: &VoxelParams) -> Result<VoxelMerge> {
     let mut parts = VoxelMerge::new(voxel)?;
     for (i, (view, pose)) in views.into_iter().zip(poses).enumerate() {
         if let (Ok(view), Some(pose)) = (view, pose) {
@@ -84,9 +84,9 @@ fn registered_views(
     progress("prepare views", 0, STAGES);
     let views = prepare(preparer, stages);
     if views.iter().all(|v| v.is_err()) {
-        let reasons: Vec<String> =
-            views.iter().enumerate().filter_map(|(i, v)| v.as_ref().err().map(|e| format!("view {i}: {e}"))).collect();
-        return Err(Error::invalid("scan", format!("no usable view ({})", reasons.join("; "))));
+        return Err(no_usable_view(
+            views.iter().enumerate().filter_map(|(i, v)| Some((i, v.as_ref().err()?.as_str()))),
+        ));
     }
     progress("register", 4, STAGES);
     let registered = timed(stages, "register", 0, || {

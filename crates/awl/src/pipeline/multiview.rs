@@ -96,6 +96,12 @@ fn record(report: &mut ViewReport, r: &IcpResult) {
     report.levels = r.levels.clone();
 }
 
+/// The error of a scan with no usable view, naming each view's reason (view index, reason).
+pub(super) fn no_usable_view<'a>(reasons: impl IntoIterator<Item = (usize, &'a str)>) -> Error {
+    let reasons: Vec<String> = reasons.into_iter().map(|(i, reason)| format!("view {i}: {reason}")).collect();
+    Error::invalid("scan", format!("no usable view ({})", reasons.join("; ")))
+}
+
 /// Marks the anchor's report.
 pub(super) fn make_anchor(report: &mut ViewReport) {
     report.status = ViewStatus::Anchor;
