@@ -42,6 +42,15 @@ pub struct DepthCamera {
     pub depth_max_m: f64,
 }
 
+impl DepthCamera {
+    /// The depth of a raw depth pixel, metres; `None` for no return (0) or outside
+    /// `[depth_min_m, depth_max_m]`.
+    pub fn depth_m(&self, raw: u16) -> Option<f32> {
+        let z = f64::from(raw) * self.depth_scale;
+        (raw != 0 && z >= self.depth_min_m && z <= self.depth_max_m).then_some(z as f32)
+    }
+}
+
 impl Intrinsics {
     /// True when every distortion coefficient is zero.
     pub fn is_pinhole(&self) -> bool {
@@ -105,15 +114,78 @@ impl Intrinsics {
 
     /// Normalised ray of every pixel centre, row-major (`v * width + u`), for fast back-projection.
     pub fn ray_table(&self) -> Vec<[f32; 2]> {
-        let mut table = Vec::with_capacity(self.width as usize * self.height as usize);
-        for v in 0..self.height {
-            for u in 0..self.width {
-                let n = self.ray(&Point2::new(f64::from(u), f64::from(v)));
-                table.push([n.x as f32, n.y as f32]);
+        self.ray_table_every_nth(1)
+    }
+
+    /// [`Intrinsics::ray_table`] of the pixels on every `step`-th row and column (from the first),
+    /// row-major on that coarser grid ([`every_nth_grid`]): the table
+    /// [`depth_to_cloud_every_nth`] takes for `step`. `step` 0 is taken as 1.
+    pub fn ray_table_every_nth(&self, step: usize) -> Vec<[f32; 2]> {
+        let step = step.max(1);
+        let (w, h) = every_nth_grid(self.width as usize, self.height as usize, step);
+        let mut table = Vec::with_capacity(w * h);
+        for v in (0..self.height).step_by(step) {
+            for u in (0..self.width).step_by(step) {
+                table.push(self.ray_f32(u, v));
             }
         }
         table
     }
+
+    /// [`Intrinsics::ray`] of the centre of pixel `(u, v)`, as stored in a ray table.
+    fn ray_f32(&self, u: u32, v: u32) -> [f32; 2] {
+        let n = self.ray(&Point2::new(f64::from(u), f64::from(v)));
+        [n.x as f32, n.y as f32]
+    }
+}
+
+/// A rectangle of pixels: columns `u` and rows `v` (half-open ranges).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PixelRect {
+    /// Columns.
+    pub u: std::ops::Range<u32>,
+    /// Rows.
+    pub v: std::ops::Range<u32>,
+}
+
+impl PixelRect {
+    /// The pixels within `margin` pixels of the bounding box of `points` (pixel coordinates,
+    /// integer = pixel centre), clipped to a `width` x `height` image; empty for no point or a
+    /// non-finite one.
+    pub fn around(points: &[[f64; 2]], margin: f64, width: u32, height: u32) -> Self {
+        let range = |axis: usize, size: u32| {
+            let (lo, hi) = points
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[axis]), hi.max(p[axis])));
+            if !(lo.is_finite() && hi.is_finite() && margin.is_finite()) {
+                return 0..0;
+            }
+            // the integer pixels in [lo - margin, hi + margin], clipped to the image
+            let size = f64::from(size);
+            let start = (lo - margin).ceil().clamp(0.0, size);
+            let end = ((hi + margin).floor() + 1.0).clamp(start, size);
+            start as u32..end as u32
+        };
+        Self { u: range(0, width), v: range(1, height) }
+    }
+}
+
+/// The camera-frame points of the depth pixels in `rect` inside `[depth_min_m, depth_max_m]`, row
+/// by row: the points [`depth_to_cloud`] gives for those pixels, their rays computed here (no
+/// table: for a small part of the image).
+pub fn depth_points_in(depth: &DepthImage, camera: &DepthCamera, rect: &PixelRect) -> Vec<Point3<f32>> {
+    let width = depth.width as usize;
+    let mut points = Vec::new();
+    for v in rect.v.clone() {
+        for u in rect.u.clone() {
+            let Some(z) = depth.data.get(v as usize * width + u as usize).and_then(|&raw| camera.depth_m(raw)) else {
+                continue;
+            };
+            let ray = camera.intrinsics.ray_f32(u, v);
+            points.push(Point3::new(ray[0] * z, ray[1] * z, z));
+        }
+    }
+    points
 }
 
 /// Back-projects every depth pixel inside `[depth_min_m, depth_max_m]` into the camera frame, with
@@ -148,8 +220,8 @@ pub fn every_nth_grid(width: usize, height: usize, step: usize) -> (usize, usize
 }
 
 /// Like [`depth_to_cloud_with_pixels`] on the pixels of every `step`-th row and column only (from
-/// the first), each point's pixel numbered on that coarser grid ([`every_nth_grid`]). `step` 0 is
-/// taken as 1.
+/// the first), each point's pixel numbered on that coarser grid ([`every_nth_grid`]); `rays` is
+/// `camera.intrinsics.ray_table_every_nth(step)`, on that grid too. `step` 0 is taken as 1.
 pub fn depth_to_cloud_every_nth(
     depth: &DepthImage,
     color: Option<&ColorImage>,
@@ -159,23 +231,17 @@ pub fn depth_to_cloud_every_nth(
 ) -> (PointCloud, Vec<u32>) {
     let step = step.max(1);
     let (width, height) = (depth.width as usize, depth.height as usize);
-    let (coarse_width, _) = every_nth_grid(width, height, step);
-    let (mut points, mut pixels) = (Vec::new(), Vec::new());
-    let mut colors = color.map(|_| Vec::new());
+    let (coarse_width, coarse_height) = every_nth_grid(width, height, step);
+    let capacity = coarse_width * coarse_height;
+    let (mut points, mut pixels) = (Vec::with_capacity(capacity), Vec::with_capacity(capacity));
+    let mut colors = color.map(|_| Vec::with_capacity(capacity));
     for v in (0..height).step_by(step) {
         for u in (0..width).step_by(step) {
-            let i = v * width + u;
-            let (Some(&raw), Some(ray)) = (depth.data.get(i), rays.get(i)) else { continue };
-            if raw == 0 {
-                continue;
-            }
-            let z = f64::from(raw) * camera.depth_scale;
-            if z < camera.depth_min_m || z > camera.depth_max_m {
-                continue;
-            }
-            let z = z as f32;
+            let (i, coarse) = (v * width + u, (v / step) * coarse_width + u / step);
+            let (Some(&raw), Some(ray)) = (depth.data.get(i), rays.get(coarse)) else { continue };
+            let Some(z) = camera.depth_m(raw) else { continue };
             points.push(Point3::new(ray[0] * z, ray[1] * z, z));
-            pixels.push(((v / step) * coarse_width + u / step) as u32);
+            pixels.push(coarse as u32);
             if let (Some(colors), Some(image)) = (colors.as_mut(), color) {
                 colors.push(image.data.get(i).copied().unwrap_or_default());
             }
@@ -240,8 +306,9 @@ mod tests {
         let data: Vec<u16> = (0..15).map(|p| if p == 1 || p == 14 { 0 } else { 1000 + p }).collect();
         let depth = DepthImage { width: 5, height: 3, data };
         let color = ColorImage { width: 5, height: 3, data: (0..15).map(|p| [p, 0, 0]).collect() };
-        let rays = intrinsics.ray_table();
-        let (cloud, coarse) = depth_to_cloud_every_nth(&depth, Some(&color), &cam, &rays, 2);
+        let (rays, coarse_rays) = (intrinsics.ray_table(), intrinsics.ray_table_every_nth(2));
+        assert_eq!(coarse_rays, [0, 2, 4, 10, 12, 14].map(|i| rays[i]));
+        let (cloud, coarse) = depth_to_cloud_every_nth(&depth, Some(&color), &cam, &coarse_rays, 2);
         // (u, v) in {0, 2, 4} x {0, 2}: pixels 0, 2, 4, 10, 12 (14 has no depth), on a 3-wide grid
         let depth_mm: Vec<u16> = cloud.points.iter().map(|p| (p.z * 1000.0).round() as u16).collect();
         assert_eq!(depth_mm, vec![1000, 1002, 1004, 1010, 1012]);
@@ -252,5 +319,29 @@ mod tests {
         let (full, full_pixels) = depth_to_cloud_with_pixels(&depth, None, &cam, &rays);
         assert_eq!(full.len(), 13);
         assert_eq!((all.points, pixels), (full.points, full_pixels));
+    }
+
+    #[test]
+    fn a_pixel_rectangle_back_projects_as_the_whole_image_does_there() {
+        let intrinsics = d435([0.08, -0.03, 0.001, -0.0015, 0.005]);
+        let cam = DepthCamera { intrinsics, depth_scale: 0.001, depth_min_m: 0.2, depth_max_m: 3.0 };
+        let data: Vec<u16> = (0..640 * 480).map(|p| if p % 7 == 0 { 0 } else { 500 + (p % 1999) as u16 }).collect();
+        let depth = DepthImage { width: 640, height: 480, data };
+        let (all, pixels) = depth_to_cloud_with_pixels(&depth, None, &cam, &intrinsics.ray_table());
+        // corners near the image's corner: the rectangle is clipped there
+        let rect = PixelRect::around(&[[3.2, 470.4], [30.0, 478.9], [10.5, 455.0]], 2.0, 640, 480);
+        assert_eq!(rect, PixelRect { u: 2..33, v: 453..480 });
+        let want: Vec<Point3<f32>> = pixels
+            .iter()
+            .zip(&all.points)
+            .filter(|&(&i, _)| rect.u.contains(&(i % 640)) && rect.v.contains(&(i / 640)))
+            .map(|(_, p)| *p)
+            .collect();
+        assert!(want.len() > 600, "{}", want.len());
+        assert_eq!(depth_points_in(&depth, &cam, &rect), want);
+        assert!(PixelRect::around(&[], 2.0, 640, 480).u.is_empty());
+        assert!(PixelRect::around(&[[f64::NAN, 1.0]], 2.0, 640, 480).u.is_empty());
+        let outside = PixelRect::around(&[[700.0, -50.0]], 2.0, 640, 480);
+        assert!(outside.u.is_empty() && outside.v.is_empty(), "{outside:?}");
     }
 }

@@ -161,6 +161,22 @@ impl PointCloud {
         }
     }
 
+    /// Keeps the points at `indices` (strictly increasing), with their normals and colors, in
+    /// place: [`PointCloud::select`] without a second copy of the cloud.
+    ///
+    /// # Panics
+    /// Never for strictly increasing indices below `len()`, those callers obtain from this cloud.
+    pub fn retain_indices(&mut self, indices: &[usize]) {
+        debug_assert!(indices.windows(2).all(|w| w[0] < w[1]), "indices not strictly increasing");
+        retain_at(&mut self.points, indices);
+        if let Some(normals) = self.normals.as_mut() {
+            retain_at(normals, indices);
+        }
+        if let Some(colors) = self.colors.as_mut() {
+            retain_at(colors, indices);
+        }
+    }
+
     /// Appends `other`; normals or colors are kept only when both clouds have them.
     pub fn extend(&mut self, other: &PointCloud) {
         let had_points = !self.points.is_empty();
@@ -168,6 +184,14 @@ impl PointCloud {
         merge_attribute(&mut self.normals, other.normals.as_ref(), had_points);
         merge_attribute(&mut self.colors, other.colors.as_ref(), had_points);
     }
+}
+
+/// `items` at `indices` (strictly increasing), moved to the front in place; the rest dropped.
+pub(crate) fn retain_at<T: Copy>(items: &mut Vec<T>, indices: &[usize]) {
+    for (j, &i) in indices.iter().enumerate() {
+        items[j] = items[i];
+    }
+    items.truncate(indices.len());
 }
 
 fn merge_attribute<T: Clone>(mine: &mut Option<Vec<T>>, theirs: Option<&Vec<T>>, had_points: bool) {
@@ -196,6 +220,20 @@ mod tests {
         assert_eq!(cloud.len(), 4);
         assert!(cloud.colors.is_none(), "colors dropped when one side has none");
         assert!(PointCloud::default().bounds().is_none());
+    }
+
+    #[test]
+    fn retain_indices_is_select_in_place() {
+        let points: Vec<Point3<f32>> = (0..9).map(|i| Point3::new(i as f32, 0.0, 1.0)).collect();
+        let normals = Some(points.iter().map(|p| Vector3::new(0.0, p.x, 1.0)).collect());
+        let colors = Some((0..9u8).map(|i| [i, 2 * i, 3 * i]).collect());
+        for cloud in [PointCloud::from_points(points.clone()), PointCloud { points, normals, colors }] {
+            for keep in [vec![], vec![0, 1, 2], vec![1, 4, 5, 8], (0..9).collect()] {
+                let mut kept = cloud.clone();
+                kept.retain_indices(&keep);
+                assert_eq!(kept, cloud.select(&keep), "{keep:?}");
+            }
+        }
     }
 
     #[test]

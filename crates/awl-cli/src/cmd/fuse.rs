@@ -131,6 +131,7 @@ pub fn fuse_with_progress(
     let (out, tags) =
         rayon::join(|| fuse(scan, config, &progress), || search_tags(scan, &WorkpieceParams::default().tag));
     bar.finish_and_clear();
+    crate::malloc::release_free();
     Ok((out?, tags.context("searching the scan's color views for its tag")?))
 }
 

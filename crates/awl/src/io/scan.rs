@@ -6,11 +6,11 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use crate::camera::{DepthCamera, Intrinsics, depth_to_cloud_every_nth};
+use crate::camera::{DepthCamera, Intrinsics, PixelRect, depth_points_in, depth_to_cloud_every_nth};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
@@ -441,19 +441,21 @@ fn back_project(
 ) -> (PointCloud, Vec<u32>) {
     match rays {
         Some(rays) => depth_to_cloud_every_nth(depth, color, camera, rays, step),
-        None => depth_to_cloud_every_nth(depth, color, camera, &camera.intrinsics.ray_table(), step),
+        None => depth_to_cloud_every_nth(depth, color, camera, &camera.intrinsics.ray_table_every_nth(step), step),
     }
 }
 
 /// A depth view's points in the camera frame (depth range applied), without colors: the color
-/// image is not read. `None` for a point-file view.
+/// image is not read; only those of the pixels in `rect` when given (their rays computed, no ray
+/// table). `None` for a point-file view.
 ///
 /// # Errors
 /// As [`load_view`].
-pub fn load_depth_points(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result<Option<PointCloud>> {
+pub fn load_depth_points(scan: &Scan, index: usize, rect: Option<&PixelRect>) -> Result<Option<Vec<Point3<f32>>>> {
     let ViewData::Depth { depth, .. } = &scan.view(index)?.data else { return Ok(None) };
     let (camera, image) = read_depth(scan, depth)?;
-    Ok(Some(back_project(&image, None, camera, rays, 1).0))
+    let whole = PixelRect { u: 0..image.width, v: 0..image.height };
+    Ok(Some(depth_points_in(&image, camera, rect.unwrap_or(&whole))))
 }
 
 /// Loads view `index`: its points in the camera frame (depth range applied), colors, and seed pose.
@@ -467,7 +469,8 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
 
 /// [`load_view`] keeping a depth view's pixels on every `step`-th row and column only, each
 /// point's pixel numbered on that coarser grid ([`crate::camera::every_nth_grid`]; see
-/// [`crate::camera::depth_to_cloud_every_nth`]). A point-file view is loaded whole.
+/// [`crate::camera::depth_to_cloud_every_nth`]); `rays`, when given, is the camera's
+/// `ray_table_every_nth(step)`. A point-file view is loaded whole.
 ///
 /// # Errors
 /// As [`load_view`].

@@ -30,15 +30,17 @@ use crate::spatial::{KdIndex, KnnTable, Neighbor};
 /// Bad parameters, a non-finite cloud, a grid that is not the cloud's. (`smoothing_m` is checked
 /// once for the whole fuse, by [`FuseConfig::check`](super::config::FuseConfig::check).)
 pub(crate) fn clean_on_grid(
-    cloud: &PointCloud,
-    grid: &PixelGrid,
+    cloud: PointCloud,
+    grid: PixelGrid,
     half: usize,
     sor: &SorParams,
     params: &NormalParams,
     smoothing_m: Option<f64>,
 ) -> Result<(PointCloud, Option<PointCloud>)> {
-    let Cleaned { sor, normals, centroids } = organized::clean(cloud, grid, half, sor, params)?;
-    let measured = cloud.select(&sor.kept);
+    let Cleaned { sor, normals, centroids } = organized::clean(&cloud, &grid, half, sor, params)?;
+    drop(grid);
+    let mut measured = cloud;
+    measured.retain_indices(&sor.kept);
     let Some(max_shift) = smoothing_m else {
         return Ok((with_oriented_normals(measured, normals, &Point3::origin())?, None));
     };
@@ -60,7 +62,8 @@ fn with_oriented_normals(
     orient_towards(&cloud.points, &mut normals, viewpoint)?;
     let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
     cloud.normals = Some(normals);
-    Ok(cloud.select(&valid))
+    cloud.retain_indices(&valid);
+    Ok(cloud)
 }
 
 /// The cloud without its statistical outliers, with unit normals oriented toward `viewpoint`

@@ -14,11 +14,11 @@ use super::clean::{clean_on_grid, clean_with_normals};
 use super::config::FuseConfig;
 use super::report::StageReport;
 use crate::camera::every_nth_grid;
-use crate::cloud::PointCloud;
+use crate::cloud::{PointCloud, retain_at};
 use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
-use crate::io::scan::{Scan, load_view_every_nth};
+use crate::io::scan::{LoadedView, Scan, load_view_every_nth};
 use crate::organized::PixelGrid;
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
@@ -84,7 +84,7 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
             let grid = PixelGrid::new(width, height, pixels)?;
             let smoothing = config.registration_smoothing_m;
             let (cleaned, m) =
-                clean_on_grid(&cloud, &grid, config.pixel_window, &config.outliers, &config.normals, smoothing)?;
+                clean_on_grid(cloud, grid, config.pixel_window, &config.outliers, &config.normals, smoothing)?;
             let thinned = |c| downsample(&without_grazing(c, config.max_incidence_rad), &config.view_voxel);
             measured = m.map(thinned).transpose()?;
             thinned(cleaned)?
@@ -108,13 +108,14 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
 
 /// The points seen at more than `max_incidence_rad` between their normal and the ray to the
 /// camera (at the origin) dropped.
-fn without_grazing(cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
+fn without_grazing(mut cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
     let (Some(max), Some(normals)) = (max_incidence_rad, cloud.normals.as_ref()) else { return cloud };
     let min_cos = max.cos() as f32;
     let keep: Vec<usize> = (0..cloud.len())
         .filter(|&i| normals[i].dot(&(-cloud.points[i].coords)) >= min_cos * cloud.points[i].coords.norm())
         .collect();
-    cloud.select(&keep)
+    cloud.retain_indices(&keep);
+    cloud
 }
 
 /// The point nearest to every view's optical axis (least squares), world frame; `None` when the
@@ -171,7 +172,7 @@ pub(crate) struct Preparer<'a> {
 
 impl<'a> Preparer<'a> {
     pub(crate) fn new(scan: &'a Scan, config: &'a FuseConfig) -> Self {
-        let rays = scan.camera.map(|c| c.intrinsics.ray_table());
+        let rays = scan.camera.map(|c| c.intrinsics.ray_table_every_nth(config.pixel_step));
         let grid = scan.camera.map_or((0, 0), |c| {
             every_nth_grid(c.intrinsics.width as usize, c.intrinsics.height as usize, config.pixel_step)
         });
@@ -248,8 +249,10 @@ fn prepare_view(
 ) -> std::result::Result<PreparedView, String> {
     let load_start = Instant::now();
     let loaded = load_view_every_nth(scan, i, rays, config.pixel_step).map_err(|e| e.to_string())?;
-    let pixels = loaded.pixels.filter(|_| config.pixel_window > 0);
-    let view = PreparedView { seed: loaded.world_from_camera, cloud: loaded.cloud_camera, pixels, measured: None };
+    // the points carry their colors: the color image is not kept
+    let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color: _ } = loaded;
+    let pixels = pixels.filter(|_| config.pixel_window > 0);
+    let view = PreparedView { seed, cloud, pixels, measured: None };
     let n = view.cloud.len();
     tally[0] = Some((n, n, load_start.elapsed().as_secs_f64()));
     let mut view = non_empty(view, "the depth range crop").map_err(|e| e.to_string())?;
@@ -264,13 +267,13 @@ fn prepare_view(
 }
 
 /// The view's points within `radius` of `focus` (world frame).
-fn within(v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<PreparedView> {
+fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<PreparedView> {
     let r2 = (radius * radius) as f32;
     let centre = (v.seed.inverse() * focus).cast::<f32>();
     let keep: Vec<usize> = (0..v.cloud.len()).filter(|&i| (v.cloud.points[i] - centre).norm_squared() <= r2).collect();
-    let pixels = v.pixels.map(|px| keep.iter().map(|&i| px[i]).collect());
-    non_empty(
-        PreparedView { seed: v.seed, cloud: v.cloud.select(&keep), pixels, measured: None },
-        "the region-of-interest crop",
-    )
+    v.cloud.retain_indices(&keep);
+    if let Some(pixels) = v.pixels.as_mut() {
+        retain_at(pixels, &keep);
+    }
+    non_empty(v, "the region-of-interest crop")
 }

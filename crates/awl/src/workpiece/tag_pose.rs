@@ -6,7 +6,7 @@ use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::Intrinsics;
+use crate::camera::{Intrinsics, PixelRect};
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
 use crate::io::scan::{Scan, TagSpec, ViewData, load_depth_points, read_color};
@@ -321,24 +321,27 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     let Some(tag) = scan.tag.as_ref() else { return Ok(None) };
     check_tag_spec(tag)?;
     let camera = scan.depth_camera()?;
-    // the ray table only once a view needs its depth (most scans: the first view that sees the tag)
-    let rays = std::sync::OnceLock::new();
+    let (width, height) = (camera.intrinsics.width, camera.intrinsics.height);
     // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
     // leaves idle, and a second detector would add its decode table and image buffers (~8 MB)
     // to the fuse's peak.
     // Each view's depth is decoded only when the declared tag is in its color image (for the
-    // planar ambiguity): most views do not see the tag
+    // planar ambiguity; most views do not see the tag), and back-projected only around the tag:
+    // the depth scores read the points inside its quad alone
     let views = detect_each(scan.views.len(), &params.detector, 1, |detector, index| {
         let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
         let image = read_color(scan, camera, color)?;
         let found = detector.detect_color(&image)?;
-        let depth = if found.iter().any(|d| d.id == tag.id) {
-            load_depth_points(scan, index, Some(rays.get_or_init(|| camera.intrinsics.ray_table())))?
+        let corners: Vec<[f64; 2]> = found.iter().filter(|d| d.id == tag.id).flat_map(|d| d.corners_px).collect();
+        let points_camera = if corners.is_empty() {
+            Vec::new()
         } else {
-            None
+            // a back-projected pixel projects back within 1e-3 px: 2 px of margin keep every point
+            // that can project inside the quad
+            let rect = PixelRect::around(&corners, 2.0, width, height);
+            load_depth_points(scan, index, Some(&rect))?.unwrap_or_default()
         };
-        let points_camera = depth.as_ref().map_or(&[][..], |c| &c.points[..]);
-        Ok(Some((index, pose_detections(found, index, points_camera, &camera.intrinsics, tag, params))))
+        Ok(Some((index, pose_detections(found, index, &points_camera, &camera.intrinsics, tag, params))))
     })?;
     Ok(Some(TagSearch { tag: tag.clone(), views }))
 }
