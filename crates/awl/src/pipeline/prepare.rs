@@ -250,7 +250,8 @@ fn prepare_view(
     let load_start = Instant::now();
     let loaded = load_view_every_nth(scan, i, rays, config.pixel_step).map_err(|e| e.to_string())?;
     // the points carry their colors: the color image is not kept
-    let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color: _ } = loaded;
+    let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color } = loaded;
+    drop(color);
     let pixels = pixels.filter(|_| config.pixel_window > 0);
     let view = PreparedView { seed, cloud, pixels, measured: None };
     let n = view.cloud.len();

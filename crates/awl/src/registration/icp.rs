@@ -177,9 +177,24 @@ fn check(params: &IcpParams, source: &PointCloud, target: &PointCloud) -> Result
 
 /// Moves the source points (and normals) by `t`, in f64.
 pub(super) fn move_cloud(cloud: &PointCloud, t: &Isometry3<f64>) -> (Vec<Point3<f64>>, Option<Vec<Vector3<f64>>>) {
-    let points = cloud.points.iter().map(|p| t * p.cast::<f64>()).collect();
-    let normals = cloud.normals.as_ref().map(|ns| ns.iter().map(|n| t.rotation * n.cast::<f64>()).collect());
-    (points, normals)
+    let mut moved = (Vec::new(), None);
+    move_cloud_into(cloud, t, &mut moved);
+    moved
+}
+
+/// [`move_cloud`] into `moved`'s buffers (an ICP level's iterations reuse them).
+fn move_cloud_into(cloud: &PointCloud, t: &Isometry3<f64>, moved: &mut (Vec<Point3<f64>>, Option<Vec<Vector3<f64>>>)) {
+    let (points, normals) = moved;
+    points.clear();
+    points.extend(cloud.points.iter().map(|p| t * p.cast::<f64>()));
+    match cloud.normals.as_ref() {
+        Some(ns) => {
+            let out = normals.get_or_insert_with(Vec::new);
+            out.clear();
+            out.extend(ns.iter().map(|n| t.rotation * n.cast::<f64>()));
+        }
+        None => *normals = None,
+    }
 }
 
 fn centre_and_length(points: &[Point3<f64>]) -> (Vector3<f64>, f64) {
@@ -222,12 +237,14 @@ fn run_level(
     let target_l = Target { points: &tgt.points, normals, index };
     let min_cos = params.max_normal_angle_rad.map(f64::cos);
     let (mut iterations, mut converged) = (0, false);
-    let length = centre_and_length(&move_cloud(src, &t).0).1;
+    let mut buffers = move_cloud(src, &t);
+    let length = centre_and_length(&buffers.0).1;
     let mut sys = None;
     let mut hints = vec![Hint::NONE; src.len()];
     while iterations < level.max_iterations {
-        let (moved, moved_normals) = move_cloud(src, &t);
-        let centre = centre_and_length(&moved).0;
+        move_cloud_into(src, &t, &mut buffers);
+        let (moved, moved_normals) = &buffers;
+        let centre = centre_and_length(moved).0;
         let step = StepParams {
             max_distance_m: level.max_correspondence_m,
             max_tangential_m: params.max_tangential_voxels.filter(|_| level.voxel_m > 0.0).map(|k| k * level.voxel_m),
@@ -237,7 +254,7 @@ fn run_level(
             centre,
             length_m: length,
         };
-        let s = linearise(&moved, moved_normals.as_deref(), &target_l, &step, &mut hints);
+        let s = linearise(moved, moved_normals.as_deref(), &target_l, &step, &mut hints);
         iterations += 1;
         sys = Some(s);
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
