@@ -6,18 +6,42 @@ use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
 use crate::io::{read_bytes, write_atomic};
 
-fn decoder(path: &Path, bytes: &[u8]) -> Result<png::Reader<std::io::Cursor<Vec<u8>>>> {
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes.to_vec()));
+fn decoder(path: &Path, bytes: Vec<u8>) -> Result<png::Reader<std::io::Cursor<Vec<u8>>>> {
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     decoder.set_transformations(png::Transformations::IDENTITY);
     decoder.read_info().map_err(|e| Error::format(path, format!("not a readable PNG: {e}")))
 }
 
-fn decode_frame(path: &Path, reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<Vec<u8>> {
-    let size = reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
-    let mut buf = vec![0; size];
-    let frame = reader.next_frame(&mut buf).map_err(|e| Error::format(path, format!("corrupt PNG data: {e}")))?;
-    buf.truncate(frame.buffer_size());
-    Ok(buf)
+/// The image's pixel count, once its decoded size is known to fit in memory's address space.
+fn pixel_count(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<usize> {
+    reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
+    let info = reader.info();
+    Ok(info.width as usize * info.height as usize)
+}
+
+/// Decodes the image's rows in order into `row` (each one row of raw samples): row by row, so the
+/// whole raw image is never held beside the caller's pixels; an interlaced image is decoded whole
+/// first.
+fn decode_rows(
+    path: &Path,
+    reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>,
+    mut row: impl FnMut(&[u8]),
+) -> Result<()> {
+    let corrupt = |e: png::DecodingError| Error::format(path, format!("corrupt PNG data: {e}"));
+    if reader.info().interlaced {
+        let size =
+            reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
+        let mut buf = vec![0; size];
+        let frame = reader.next_frame(&mut buf).map_err(corrupt)?;
+        buf.truncate(frame.buffer_size());
+        let line = frame.line_size.max(1);
+        buf.chunks_exact(line).for_each(row);
+        return Ok(());
+    }
+    while let Some(r) = reader.next_row().map_err(corrupt)? {
+        row(r.data());
+    }
+    Ok(())
 }
 
 /// Reads a 16-bit single-channel PNG depth image.
@@ -27,7 +51,7 @@ fn decode_frame(path: &Path, reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>)
 /// (an 8-bit depth image would silently lose range, so it is refused).
 pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
     let bytes = read_bytes(path)?;
-    let mut reader = decoder(path, &bytes)?;
+    let mut reader = decoder(path, bytes)?;
     let info = reader.info();
     let (width, height) = (info.width, info.height);
     let (color, depth) = (info.color_type, info.bit_depth);
@@ -37,8 +61,8 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
             format!("depth images must be 16-bit grayscale PNG, this one is {depth:?}-bit {color:?}"),
         ));
     }
-    let buf = decode_frame(path, &mut reader)?;
-    let data = buf.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]])).collect::<Vec<_>>();
+    let mut data = Vec::with_capacity(pixel_count(path, &reader)?);
+    decode_rows(path, &mut reader, |row| data.extend(row.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]]))))?;
     if data.len() != width as usize * height as usize {
         return Err(Error::format(path, "PNG pixel data does not match its size"));
     }
@@ -51,22 +75,27 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
 /// [`Error::Io`] when unreadable; [`Error::Format`] when it is not a valid 8-bit PNG.
 pub fn read_color_png(path: &Path) -> Result<ColorImage> {
     let bytes = read_bytes(path)?;
-    let mut reader = decoder(path, &bytes)?;
+    let mut reader = decoder(path, bytes)?;
     let info = reader.info();
     let (width, height, color, depth) = (info.width, info.height, info.color_type, info.bit_depth);
     if depth != png::BitDepth::Eight {
         return Err(Error::format(path, format!("color images must be 8-bit PNG, this one is {depth:?}-bit")));
     }
-    let buf = decode_frame(path, &mut reader)?;
-    let data: Vec<[u8; 3]> = match color {
-        png::ColorType::Rgb => buf.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-        png::ColorType::Rgba => buf.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
-        png::ColorType::Grayscale => buf.iter().map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => buf.chunks_exact(2).map(|c| [c[0], c[0], c[0]]).collect(),
+    let channels = match color {
+        png::ColorType::Rgb => 3,
+        png::ColorType::Rgba => 4,
+        png::ColorType::Grayscale => 1,
+        png::ColorType::GrayscaleAlpha => 2,
         png::ColorType::Indexed => {
             return Err(Error::format(path, "indexed-palette PNG is not supported for color images"));
         }
     };
+    let mut data: Vec<[u8; 3]> = Vec::with_capacity(pixel_count(path, &reader)?);
+    decode_rows(path, &mut reader, |row| {
+        data.extend(
+            row.chunks_exact(channels).map(|c| if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }),
+        );
+    })?;
     if data.len() != width as usize * height as usize {
         return Err(Error::format(path, "PNG pixel data does not match its size"));
     }
@@ -121,5 +150,92 @@ mod tests {
         assert_eq!(read_color_png(&path).expect("read"), color);
         let err = read_depth_png(&path).unwrap_err().to_string();
         assert!(err.contains("c.png") && err.contains("16-bit"), "{err}");
+    }
+
+    /// A PNG with Adam7 interlacing, written here by hand (the encoder writes none): `samples` is
+    /// the image row-major, `bytes_per_pixel` bytes a pixel, stored (uncompressed) deflate blocks.
+    fn adam7_png(
+        width: usize,
+        height: usize,
+        color_type: u8,
+        bit_depth: u8,
+        bytes_per_pixel: usize,
+        samples: &[u8],
+    ) -> Vec<u8> {
+        fn crc32(bytes: &[u8]) -> u32 {
+            let mut crc = !0u32;
+            for &b in bytes {
+                crc ^= u32::from(b);
+                for _ in 0..8 {
+                    crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+                }
+            }
+            !crc
+        }
+        fn chunk(out: &mut Vec<u8>, kind: &[u8], data: &[u8]) {
+            out.extend((data.len() as u32).to_be_bytes());
+            let body: Vec<u8> = kind.iter().chain(data).copied().collect();
+            out.extend(&body);
+            out.extend(crc32(&body).to_be_bytes());
+        }
+        let mut raw = Vec::new();
+        for (x0, y0, dx, dy) in
+            [(0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2)]
+        {
+            if x0 >= width || y0 >= height {
+                continue;
+            }
+            for y in (y0..height).step_by(dy) {
+                raw.push(0); // filter: none
+                for x in (x0..width).step_by(dx) {
+                    let i = (y * width + x) * bytes_per_pixel;
+                    raw.extend(&samples[i..i + bytes_per_pixel]);
+                }
+            }
+        }
+        let (mut zlib, mut adler) = (vec![0x78, 0x01], (1u32, 0u32));
+        for &b in &raw {
+            adler.0 = (adler.0 + u32::from(b)) % 65521;
+            adler.1 = (adler.1 + adler.0) % 65521;
+        }
+        let blocks: Vec<&[u8]> = raw.chunks(65535).collect();
+        for (k, block) in blocks.iter().enumerate() {
+            zlib.push(u8::from(k + 1 == blocks.len()));
+            let len = block.len() as u16;
+            zlib.extend(len.to_le_bytes());
+            zlib.extend((!len).to_le_bytes());
+            zlib.extend(*block);
+        }
+        zlib.extend(((adler.1 << 16) | adler.0).to_be_bytes());
+        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+        let mut header: Vec<u8> = Vec::new();
+        header.extend((width as u32).to_be_bytes());
+        header.extend((height as u32).to_be_bytes());
+        header.extend([bit_depth, color_type, 0, 0, 1]);
+        chunk(&mut out, b"IHDR", &header);
+        chunk(&mut out, b"IDAT", &zlib);
+        chunk(&mut out, b"IEND", &[]);
+        out
+    }
+
+    #[test]
+    fn interlaced_images_read_as_the_plain_ones() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (w, h) = (13, 10);
+        let depth =
+            DepthImage { width: w as u32, height: h as u32, data: (0..w * h).map(|i| (i * 517) as u16).collect() };
+        let samples: Vec<u8> = depth.data.iter().flat_map(|v| v.to_be_bytes()).collect();
+        let path = dir.path().join("d.png");
+        std::fs::write(&path, adam7_png(w, h, 0, 16, 2, &samples)).expect("write");
+        assert_eq!(read_depth_png(&path).expect("interlaced depth"), depth);
+        let rgba: Vec<u8> = (0..w * h * 4).map(|i| (i * 7 % 251) as u8).collect();
+        let color = ColorImage {
+            width: w as u32,
+            height: h as u32,
+            data: rgba.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
+        };
+        let path = dir.path().join("c.png");
+        std::fs::write(&path, adam7_png(w, h, 6, 8, 4, &rgba)).expect("write");
+        assert_eq!(read_color_png(&path).expect("interlaced color"), color);
     }
 }
