@@ -12,9 +12,14 @@ fn decoder(path: &Path, bytes: Vec<u8>) -> Result<png::Reader<std::io::Cursor<Ve
     decoder.read_info().map_err(|e| Error::format(path, format!("not a readable PNG: {e}")))
 }
 
+/// The decoded image's size in bytes, once known to fit in memory's address space.
+fn output_size(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<usize> {
+    reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))
+}
+
 /// The image's pixel count, once its decoded size is known to fit in memory's address space.
 fn pixel_count(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<usize> {
-    reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
+    output_size(path, reader)?;
     let info = reader.info();
     Ok(info.width as usize * info.height as usize)
 }
@@ -29,9 +34,7 @@ fn decode_rows(
 ) -> Result<()> {
     let corrupt = |e: png::DecodingError| Error::format(path, format!("corrupt PNG data: {e}"));
     if reader.info().interlaced {
-        let size =
-            reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))?;
-        let mut buf = vec![0; size];
+        let mut buf = vec![0; output_size(path, reader)?];
         let frame = reader.next_frame(&mut buf).map_err(corrupt)?;
         buf.truncate(frame.buffer_size());
         let line = frame.line_size.max(1);
