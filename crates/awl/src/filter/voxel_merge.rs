@@ -15,7 +15,51 @@ use crate::error::Result;
 pub struct VoxelMerge {
     params: VoxelParams,
     /// (rank, part sorted by (voxel key, index)), in the order added.
-    parts: Vec<(usize, PointCloud)>,
+    parts: Vec<(usize, Part)>,
+}
+
+/// Points per block of a part: a part is kept in blocks of this many points (48 KB of positions)
+/// that fill the holes the pipeline's short-lived buffers leave in the heap, where one block per
+/// part (~0.3-0.5 MB per attribute for a view) went on top of them: the fast preset's peak RSS on
+/// a 12-view box at 2 threads 36.9-38.0 -> 34.3-35.1 MiB (BENCHMARKS.md 56), same model.
+const BLOCK: usize = 4096;
+
+/// A part, in blocks of [`BLOCK`] points (the last one shorter).
+#[derive(Debug, Clone, Default)]
+struct Part {
+    blocks: Vec<PointCloud>,
+    len: usize,
+}
+
+impl Part {
+    /// `cloud`'s points at `order` (all of them, in order, when `None`), in blocks.
+    fn new(cloud: &PointCloud, order: Option<&[usize]>) -> Self {
+        let all: Vec<usize>;
+        let order = match order {
+            Some(order) => order,
+            None => {
+                all = (0..cloud.len()).collect();
+                &all
+            }
+        };
+        Self { blocks: order.chunks(BLOCK).map(|run| cloud.select(run)).collect(), len: order.len() }
+    }
+
+    fn point(&self, i: usize) -> &Point3<f32> {
+        &self.blocks[i / BLOCK].points[i % BLOCK]
+    }
+
+    fn has_normals(&self) -> bool {
+        self.blocks.iter().all(|b| b.normals.is_some())
+    }
+
+    fn has_colors(&self) -> bool {
+        self.blocks.iter().all(|b| b.colors.is_some())
+    }
+
+    fn bounds(&self) -> Option<Bounds> {
+        self.blocks.iter().filter_map(PointCloud::bounds).reduce(joined)
+    }
 }
 
 impl VoxelMerge {
@@ -34,17 +78,15 @@ impl VoxelMerge {
     /// # Errors
     /// As [`super::voxel::downsample`] on `cloud`.
     pub fn add(&mut self, rank: usize, cloud: PointCloud) -> Result<()> {
-        let sorted = match runs(&cloud, &self.params)? {
-            Some((order, _)) => cloud.select(&order),
-            None => cloud,
-        };
-        self.parts.push((rank, sorted));
+        let order = runs(&cloud, &self.params)?;
+        let part = Part::new(&cloud, order.as_ref().map(|(order, _)| order.as_slice()));
+        self.parts.push((rank, part));
         Ok(())
     }
 
     /// The number of points added.
     pub fn len(&self) -> usize {
-        self.parts.iter().map(|(_, p)| p.len()).sum()
+        self.parts.iter().map(|(_, p)| p.len).sum()
     }
 
     /// True when no point was added.
@@ -58,19 +100,15 @@ impl VoxelMerge {
     /// # Errors
     /// [`crate::Error::Invalid`] for a voxel so small that a voxel coordinate exceeds ±2^62.
     pub fn downsample(mut self) -> Result<PointCloud> {
-        self.parts.retain(|(_, p)| !p.is_empty());
+        self.parts.retain(|(_, p)| p.len > 0);
         self.parts.sort_by_key(|(rank, _)| *rank);
-        let parts: Vec<&PointCloud> = self.parts.iter().map(|(_, p)| p).collect();
-        let Some(bounds) = parts
-            .iter()
-            .filter_map(|p| p.bounds())
-            .reduce(|a, b| Bounds { min: a.min.inf(&b.min), max: a.max.sup(&b.max) })
-        else {
+        let parts: Vec<&Part> = self.parts.iter().map(|(_, p)| p).collect();
+        let Some(bounds) = parts.iter().filter_map(|p| p.bounds()).reduce(joined) else {
             return Ok(PointCloud::default());
         };
         let grid = Grid::new(&bounds, self.params.voxel_size_m)?;
-        let with_normals = parts.iter().all(|p| p.normals.is_some());
-        let with_colors = parts.iter().all(|p| p.colors.is_some());
+        let with_normals = parts.iter().all(|p| p.has_normals());
+        let with_colors = parts.iter().all(|p| p.has_colors());
         // a first pass counts the voxels, so the output is allocated once, at its size
         let mut voxels = 0;
         for_each_voxel(&parts, &grid, |_| voxels += 1);
@@ -82,20 +120,21 @@ impl VoxelMerge {
         // one voxel's points, normals and colors in union order, and the indices 0.. over them
         let (mut points, mut normals, mut colors) = (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
         let mut run: Vec<usize> = Vec::new();
+        let block = |k: usize, i: usize| &parts[k].blocks[i / BLOCK];
         for_each_voxel(&parts, &grid, |members| {
             points.clear();
-            points.extend(members.iter().map(|&(k, i)| parts[k].points[i]));
+            points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
             run.extend(run.len()..members.len());
             let run = &run[..members.len()];
             out.points.push(mean_point(&points, run));
             if let Some(out) = out.normals.as_mut() {
                 normals.clear();
-                normals.extend(members.iter().filter_map(|&(k, i)| Some(parts[k].normals.as_ref()?[i])));
+                normals.extend(members.iter().filter_map(|&(k, i)| Some(block(k, i).normals.as_ref()?[i % BLOCK])));
                 out.push(mean_normal(&normals, run));
             }
             if let Some(out) = out.colors.as_mut() {
                 colors.clear();
-                colors.extend(members.iter().filter_map(|&(k, i)| Some(parts[k].colors.as_ref()?[i])));
+                colors.extend(members.iter().filter_map(|&(k, i)| Some(block(k, i).colors.as_ref()?[i % BLOCK])));
                 out.push(mean_color(&colors, run));
             }
         });
@@ -103,20 +142,26 @@ impl VoxelMerge {
     }
 }
 
+/// The box around both boxes.
+fn joined(a: Bounds, b: Bounds) -> Bounds {
+    Bounds { min: a.min.inf(&b.min), max: a.max.sup(&b.max) }
+}
+
 /// Walks the union of `parts` (each sorted by (voxel key, index)) voxel by voxel in key order,
 /// giving `voxel` each voxel's points as (part, index) in union order (parts in order, then index).
-fn for_each_voxel(parts: &[&PointCloud], grid: &Grid, mut voxel: impl FnMut(&[(usize, usize)])) {
+fn for_each_voxel(parts: &[&Part], grid: &Grid, mut voxel: impl FnMut(&[(usize, usize)])) {
     let mut heads = vec![0; parts.len()];
     // each part's next point's key
-    let mut keys: Vec<Option<[i64; 3]>> = parts.iter().map(|p| p.points.first().map(|q| grid.key(q))).collect();
+    let next = |k: usize, head: usize| (head < parts[k].len).then(|| grid.key(parts[k].point(head)));
+    let mut keys: Vec<Option<[i64; 3]>> = (0..parts.len()).map(|k| next(k, 0)).collect();
     let mut members = Vec::new();
     while let Some(key) = keys.iter().flatten().min().copied() {
         members.clear();
-        for (k, part) in parts.iter().enumerate() {
+        for k in 0..parts.len() {
             while keys[k] == Some(key) {
                 members.push((k, heads[k]));
                 heads[k] += 1;
-                keys[k] = part.points.get(heads[k]).map(|q| grid.key(q));
+                keys[k] = next(k, heads[k]);
             }
         }
         voxel(&members);
