@@ -21,7 +21,7 @@ pub struct VoxelMerge {
 /// Points per block of a part: a part is kept in blocks of this many points (48 KB of positions)
 /// that fill the holes the pipeline's short-lived buffers leave in the heap, where one block per
 /// part (~0.3-0.5 MB per attribute for a view) went on top of them: the fast preset's peak RSS on
-/// a 12-view box at 2 threads 36.9-38.0 -> 34.3-35.1 MiB (BENCHMARKS.md 56), same model.
+/// a 12-view box at 2 threads, medians 36.9-38.0 -> 34.3-35.3 MiB (BENCHMARKS.md 56), same model.
 const BLOCK: usize = 4096;
 
 /// A part, in blocks of [`BLOCK`] points (the last one shorter).
@@ -45,8 +45,14 @@ impl Part {
         Self { blocks: order.chunks(BLOCK).map(|run| cloud.select(run)).collect(), len: order.len() }
     }
 
+    /// The block that holds the part's point `i`, and the point's index in it.
+    fn at(&self, i: usize) -> (&PointCloud, usize) {
+        (&self.blocks[i / BLOCK], i % BLOCK)
+    }
+
     fn point(&self, i: usize) -> &Point3<f32> {
-        &self.blocks[i / BLOCK].points[i % BLOCK]
+        let (block, j) = self.at(i);
+        &block.points[j]
     }
 
     fn has_normals(&self) -> bool {
@@ -120,7 +126,6 @@ impl VoxelMerge {
         // one voxel's points, normals and colors in union order, and the indices 0.. over them
         let (mut points, mut normals, mut colors) = (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
         let mut run: Vec<usize> = Vec::new();
-        let block = |k: usize, i: usize| &parts[k].blocks[i / BLOCK];
         for_each_voxel(&parts, &grid, |members| {
             points.clear();
             points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
@@ -129,12 +134,18 @@ impl VoxelMerge {
             out.points.push(mean_point(&points, run));
             if let Some(out) = out.normals.as_mut() {
                 normals.clear();
-                normals.extend(members.iter().filter_map(|&(k, i)| Some(block(k, i).normals.as_ref()?[i % BLOCK])));
+                normals.extend(members.iter().filter_map(|&(k, i)| {
+                    let (block, j) = parts[k].at(i);
+                    Some(block.normals.as_ref()?[j])
+                }));
                 out.push(mean_normal(&normals, run));
             }
             if let Some(out) = out.colors.as_mut() {
                 colors.clear();
-                colors.extend(members.iter().filter_map(|&(k, i)| Some(block(k, i).colors.as_ref()?[i % BLOCK])));
+                colors.extend(members.iter().filter_map(|&(k, i)| {
+                    let (block, j) = parts[k].at(i);
+                    Some(block.colors.as_ref()?[j])
+                }));
                 out.push(mean_color(&colors, run));
             }
         });
