@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use crate::camera::every_nth_grid;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
 use crate::io::{read_bytes, write_atomic};
@@ -17,19 +18,13 @@ fn output_size(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>) -> R
     reader.output_buffer_size().ok_or_else(|| Error::format(path, "PNG image is too large to decode"))
 }
 
-/// The image's pixel count, once its decoded size is known to fit in memory's address space.
-fn pixel_count(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>) -> Result<usize> {
-    output_size(path, reader)?;
-    let info = reader.info();
-    Ok(info.width as usize * info.height as usize)
-}
-
-/// Decodes the image's rows in order into `row` (each one row of raw samples): row by row, so the
-/// whole raw image is never held beside the caller's pixels; an interlaced image is decoded whole
-/// first.
+/// Decodes every `step`-th row of the image (from the first) in order into `row` (each one row of
+/// raw samples): row by row, so the whole raw image is never held beside the caller's pixels; an
+/// interlaced image is decoded whole first.
 fn decode_rows(
     path: &Path,
     reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>,
+    step: usize,
     mut row: impl FnMut(&[u8]),
 ) -> Result<()> {
     let corrupt = |e: png::DecodingError| Error::format(path, format!("corrupt PNG data: {e}"));
@@ -38,13 +33,26 @@ fn decode_rows(
         let frame = reader.next_frame(&mut buf).map_err(corrupt)?;
         buf.truncate(frame.buffer_size());
         let line = frame.line_size.max(1);
-        buf.chunks_exact(line).for_each(row);
+        buf.chunks_exact(line).step_by(step).for_each(row);
         return Ok(());
     }
+    let mut v = 0;
     while let Some(r) = reader.next_row().map_err(corrupt)? {
-        row(r.data());
+        if v % step == 0 {
+            row(r.data());
+        }
+        v += 1;
     }
     Ok(())
+}
+
+/// The PNG's `(width, height)` and the pixel count of its grid of every `step`-th row and column,
+/// once its decoded size is known to fit in memory's address space.
+fn sizes(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>, step: usize) -> Result<((u32, u32), usize)> {
+    output_size(path, reader)?;
+    let info = reader.info();
+    let (w, h) = every_nth_grid(info.width as usize, info.height as usize, step);
+    Ok(((info.width, info.height), w * h))
 }
 
 /// Reads a 16-bit single-channel PNG depth image.
@@ -53,10 +61,20 @@ fn decode_rows(
 /// [`Error::Io`] when unreadable; [`Error::Format`] when it is not a valid PNG or not 16-bit grayscale
 /// (an 8-bit depth image would silently lose range, so it is refused).
 pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
+    Ok(read_depth_png_every_nth(path, 1)?.0)
+}
+
+/// [`read_depth_png`] keeping every `step`-th row and column only (from the first; `step` 0 is
+/// taken as 1): the image on the grid [`every_nth_grid`] gives, and the file's full `(width,
+/// height)`. The other pixels are decoded and dropped row by row, never held.
+///
+/// # Errors
+/// As [`read_depth_png`].
+pub fn read_depth_png_every_nth(path: &Path, step: usize) -> Result<(DepthImage, (u32, u32))> {
+    let step = step.max(1);
     let bytes = read_bytes(path)?;
     let mut reader = decoder(path, bytes)?;
     let info = reader.info();
-    let (width, height) = (info.width, info.height);
     let (color, depth) = (info.color_type, info.bit_depth);
     if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
         return Err(Error::format(
@@ -64,12 +82,16 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
             format!("depth images must be 16-bit grayscale PNG, this one is {depth:?}-bit {color:?}"),
         ));
     }
-    let mut data = Vec::with_capacity(pixel_count(path, &reader)?);
-    decode_rows(path, &mut reader, |row| data.extend(row.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]]))))?;
-    if data.len() != width as usize * height as usize {
+    let (full, pixels) = sizes(path, &reader, step)?;
+    let mut data = Vec::with_capacity(pixels);
+    decode_rows(path, &mut reader, step, |row| {
+        data.extend(row.chunks_exact(2).step_by(step).map(|c| u16::from_be_bytes([c[0], c[1]])));
+    })?;
+    if data.len() != pixels {
         return Err(Error::format(path, "PNG pixel data does not match its size"));
     }
-    Ok(DepthImage { width, height, data })
+    let (width, height) = every_nth_grid(full.0 as usize, full.1 as usize, step);
+    Ok((DepthImage { width: width as u32, height: height as u32, data }, full))
 }
 
 /// Reads an 8-bit color PNG (RGB, RGBA or grayscale, alpha dropped) as RGB.
@@ -77,10 +99,20 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
 /// # Errors
 /// [`Error::Io`] when unreadable; [`Error::Format`] when it is not a valid 8-bit PNG.
 pub fn read_color_png(path: &Path) -> Result<ColorImage> {
+    Ok(read_color_png_every_nth(path, 1)?.0)
+}
+
+/// [`read_color_png`] keeping every `step`-th row and column only, as
+/// [`read_depth_png_every_nth`].
+///
+/// # Errors
+/// As [`read_color_png`].
+pub fn read_color_png_every_nth(path: &Path, step: usize) -> Result<(ColorImage, (u32, u32))> {
+    let step = step.max(1);
     let bytes = read_bytes(path)?;
     let mut reader = decoder(path, bytes)?;
     let info = reader.info();
-    let (width, height, color, depth) = (info.width, info.height, info.color_type, info.bit_depth);
+    let (color, depth) = (info.color_type, info.bit_depth);
     if depth != png::BitDepth::Eight {
         return Err(Error::format(path, format!("color images must be 8-bit PNG, this one is {depth:?}-bit")));
     }
@@ -93,16 +125,20 @@ pub fn read_color_png(path: &Path) -> Result<ColorImage> {
             return Err(Error::format(path, "indexed-palette PNG is not supported for color images"));
         }
     };
-    let mut data: Vec<[u8; 3]> = Vec::with_capacity(pixel_count(path, &reader)?);
-    decode_rows(path, &mut reader, |row| {
+    let (full, pixels) = sizes(path, &reader, step)?;
+    let mut data: Vec<[u8; 3]> = Vec::with_capacity(pixels);
+    decode_rows(path, &mut reader, step, |row| {
         data.extend(
-            row.chunks_exact(channels).map(|c| if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }),
+            row.chunks_exact(channels)
+                .step_by(step)
+                .map(|c| if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }),
         );
     })?;
-    if data.len() != width as usize * height as usize {
+    if data.len() != pixels {
         return Err(Error::format(path, "PNG pixel data does not match its size"));
     }
-    Ok(ColorImage { width, height, data })
+    let (width, height) = every_nth_grid(full.0 as usize, full.1 as usize, step);
+    Ok((ColorImage { width: width as u32, height: height as u32, data }, full))
 }
 
 fn encode(width: u32, height: u32, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Result<Vec<u8>> {
@@ -240,5 +276,49 @@ mod tests {
         let path = dir.path().join("c.png");
         std::fs::write(&path, adam7_png(w, h, 6, 8, 4, &rgba)).expect("write");
         assert_eq!(read_color_png(&path).expect("interlaced color"), color);
+    }
+
+    /// Every `step`-th row and column of the full image, from the first.
+    fn every_nth<T: Copy>(data: &[T], width: usize, step: usize) -> Vec<T> {
+        let rows = data.chunks_exact(width).step_by(step);
+        rows.flat_map(|row| row.iter().step_by(step).copied()).collect()
+    }
+
+    #[test]
+    fn every_nth_pixel_reads_as_the_full_image_thinned() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (w, h) = (13usize, 10usize);
+        let depth =
+            DepthImage { width: w as u32, height: h as u32, data: (0..w * h).map(|i| (i * 517) as u16).collect() };
+        let color = ColorImage {
+            width: w as u32,
+            height: h as u32,
+            data: (0..w * h).map(|i| [(i % 251) as u8, (i * 3 % 251) as u8, (i * 7 % 251) as u8]).collect(),
+        };
+        let (plain_depth, plain_color) = (dir.path().join("d.png"), dir.path().join("c.png"));
+        write_depth_png(&plain_depth, &depth).expect("write depth");
+        write_color_png(&plain_color, &color).expect("write color");
+        let samples: Vec<u8> = depth.data.iter().flat_map(|v| v.to_be_bytes()).collect();
+        let adam7_depth = dir.path().join("d7.png");
+        std::fs::write(&adam7_depth, adam7_png(w, h, 0, 16, 2, &samples)).expect("write");
+        let rgb: Vec<u8> = color.data.iter().flatten().copied().collect();
+        let adam7_color = dir.path().join("c7.png");
+        std::fs::write(&adam7_color, adam7_png(w, h, 2, 8, 3, &rgb)).expect("write");
+        for step in [0, 1, 2, 3, 4, 13, 20] {
+            let s = step.max(1);
+            let (cw, ch) = (w.div_ceil(s) as u32, h.div_ceil(s) as u32);
+            let want_depth = DepthImage { width: cw, height: ch, data: every_nth(&depth.data, w, s) };
+            let want_color = ColorImage { width: cw, height: ch, data: every_nth(&color.data, w, s) };
+            for path in [&plain_depth, &adam7_depth] {
+                let got = read_depth_png_every_nth(path, step).expect("depth");
+                assert_eq!(got, (want_depth.clone(), (w as u32, h as u32)), "step {step}, {}", path.display());
+            }
+            for path in [&plain_color, &adam7_color] {
+                let got = read_color_png_every_nth(path, step).expect("color");
+                assert_eq!(got, (want_color.clone(), (w as u32, h as u32)), "step {step}, {}", path.display());
+            }
+        }
+        let err = read_depth_png_every_nth(&plain_color, 2).expect_err("not 16-bit").to_string();
+        assert!(err.contains("c.png") && err.contains("16-bit"), "{err}");
     }
 }

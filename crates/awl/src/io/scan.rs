@@ -14,7 +14,7 @@ use crate::camera::{DepthCamera, Intrinsics, PixelRect, depth_points_in, depth_t
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
-use crate::io::image::{read_color_png, read_depth_png};
+use crate::io::image::{read_color_png_every_nth, read_depth_png_every_nth};
 use crate::io::{read_bytes, write_atomic};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
 
@@ -102,7 +102,8 @@ pub struct LoadedView {
     pub cloud_camera: PointCloud,
     /// For a depth view, the pixel (`v * width + u`) each point came from.
     pub pixels: Option<Vec<u32>>,
-    /// The color image, when the view has one.
+    /// The color image, when the view has one ([`load_view_every_nth`]: its every `step`-th row
+    /// and column).
     pub color: Option<ColorImage>,
 }
 
@@ -416,22 +417,35 @@ fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Res
 
 /// The scan's camera and the depth image at `depth` (relative to the scan folder), its size checked.
 fn read_depth<'a>(scan: &'a Scan, depth: &Path) -> Result<(&'a DepthCamera, DepthImage)> {
+    read_depth_every_nth(scan, depth, 1)
+}
+
+/// [`read_depth`] keeping every `step`-th row and column ([`read_depth_png_every_nth`]).
+fn read_depth_every_nth<'a>(scan: &'a Scan, depth: &Path, step: usize) -> Result<(&'a DepthCamera, DepthImage)> {
     let camera = scan.depth_camera()?;
     let depth_path = scan.dir.join(depth);
-    let image = read_depth_png(&depth_path)?;
-    check_size(&depth_path, camera, image.width, image.height)?;
+    let (image, (width, height)) = read_depth_png_every_nth(&depth_path, step)?;
+    check_size(&depth_path, camera, width, height)?;
     Ok((camera, image))
 }
 
 /// The color image at `color` (relative to the scan folder), its size checked against `camera`.
 pub(crate) fn read_color(scan: &Scan, camera: &DepthCamera, color: &Path) -> Result<ColorImage> {
+    read_color_every_nth(scan, camera, color, 1)
+}
+
+/// [`read_color`] keeping every `step`-th row and column ([`read_color_png_every_nth`]).
+fn read_color_every_nth(scan: &Scan, camera: &DepthCamera, color: &Path, step: usize) -> Result<ColorImage> {
     let color_path = scan.dir.join(color);
-    let image = read_color_png(&color_path)?;
-    check_size(&color_path, camera, image.width, image.height)?;
+    let (image, (width, height)) = read_color_png_every_nth(&color_path, step)?;
+    check_size(&color_path, camera, width, height)?;
     Ok(image)
 }
 
-/// [`depth_to_cloud_every_nth`] with the camera's ray table built here when `rays` is `None`.
+/// The points of `depth` and `color`, images of every `step`-th row and column of the camera's
+/// ([`read_depth_png_every_nth`]): [`depth_to_cloud_every_nth`] on them with a step of 1 and the
+/// camera's `ray_table_every_nth(step)`, built here when `rays` is `None`. The same points and
+/// pixel numbers as the full images with `step`.
 fn back_project(
     depth: &DepthImage,
     color: Option<&ColorImage>,
@@ -440,8 +454,8 @@ fn back_project(
     step: usize,
 ) -> (PointCloud, Vec<u32>) {
     match rays {
-        Some(rays) => depth_to_cloud_every_nth(depth, color, camera, rays, step),
-        None => depth_to_cloud_every_nth(depth, color, camera, &camera.intrinsics.ray_table_every_nth(step), step),
+        Some(rays) => depth_to_cloud_every_nth(depth, color, camera, rays, 1),
+        None => depth_to_cloud_every_nth(depth, color, camera, &camera.intrinsics.ray_table_every_nth(step), 1),
     }
 }
 
@@ -478,8 +492,9 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
     let world_from_camera = scan.world_from_camera(index)?;
     match &scan.view(index)?.data {
         ViewData::Depth { depth, color } => {
-            let (camera, depth_image) = read_depth(scan, depth)?;
-            let color = color.as_deref().map(|c| read_color(scan, camera, c)).transpose()?;
+            // the images decoded on the coarse grid: back-projected there with a step of 1
+            let (camera, depth_image) = read_depth_every_nth(scan, depth, step)?;
+            let color = color.as_deref().map(|c| read_color_every_nth(scan, camera, c, step)).transpose()?;
             let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
             Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
         }
@@ -495,6 +510,40 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
                 cloud_camera = cloud_camera.select(&keep);
             }
             Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::every_nth_grid;
+    use crate::sim::{SceneKind, SimParams, simulate, write_simulation};
+
+    /// A view loaded at every `step`-th pixel, from images decoded on that grid only: the points,
+    /// colors and pixel numbers of the full images back-projected at that step.
+    #[test]
+    fn every_nth_pixel_equals_the_full_images_at_that_step() {
+        let sim = simulate(&SimParams { views: 1, seed: 5, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+        let dir = tempfile::tempdir().expect("tempdir");
+        write_simulation(dir.path(), &sim, false).expect("write");
+        let scan = read_scan(dir.path()).expect("read");
+        let ViewData::Depth { depth, color: Some(color) } = &scan.views[0].data else { panic!("a color depth view") };
+        let (camera, full_depth) = read_depth(&scan, depth).expect("depth");
+        let full_color = read_color(&scan, camera, color).expect("color");
+        for step in [1, 2, 3] {
+            let rays = camera.intrinsics.ray_table_every_nth(step);
+            let (want, want_pixels) = depth_to_cloud_every_nth(&full_depth, Some(&full_color), camera, &rays, step);
+            assert!(want.len() > 10_000 / (step * step), "{} points at step {step}", want.len());
+            for table in [Some(rays.as_slice()), None] {
+                let got = load_view_every_nth(&scan, 0, table, step).expect("view");
+                assert_eq!(got.cloud_camera, want, "step {step}");
+                assert_eq!(got.pixels.as_deref(), Some(want_pixels.as_slice()), "step {step}");
+                let thinned = got.color.expect("color image");
+                let (w, h) = every_nth_grid(full_color.width as usize, full_color.height as usize, step);
+                assert_eq!((thinned.width as usize, thinned.height as usize), (w, h));
+                assert_eq!(thinned.data[w + 1], full_color.data[step * full_color.width as usize + step]);
+            }
         }
     }
 }
