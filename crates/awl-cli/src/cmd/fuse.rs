@@ -122,6 +122,9 @@ pub fn fuse_with_progress(
     config: &FuseConfig,
     quiet: bool,
 ) -> anyhow::Result<(FuseOutput, Option<TagSearch>)> {
+    if config.streams_views() {
+        crate::malloc::map_view_sized_blocks();
+    }
     let bar = stage_bar(quiet);
     let progress = |stage: &str, done: usize, total: usize| {
         bar.set_length(total as u64);

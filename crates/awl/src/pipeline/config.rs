@@ -273,6 +273,15 @@ impl FuseConfig {
         }
     }
 
+    /// Whether [`fuse`](super::fuse) registers each view as it is prepared and keeps only its
+    /// measured points (no refinement rounds, no joint refinement: each pose is final once the
+    /// view is judged), rather than preparing every view first and holding them all. Streamed, the
+    /// memory is the model and one or two views in flight (the `fast` preset).
+    #[must_use]
+    pub fn streams_views(&self) -> bool {
+        self.registration.refine_rounds == 0 && self.registration.joint_levels.is_empty()
+    }
+
     /// Checks the parameters no stage checks on its own (the others are checked by their stage).
     ///
     /// # Errors
@@ -436,6 +445,11 @@ mod tests {
         let e = FuseConfig { pixel_step: 0, ..FuseConfig::default() }.check().expect_err("step 0").to_string();
         assert!(e.contains("pixel_step"), "{e}");
         assert!(FuseConfig::fast().check().is_ok());
+        // the fast preset streams its views; the default holds them for the joint refinement
+        assert!(FuseConfig::fast().streams_views() && !FuseConfig::default().streams_views());
+        let mut rounds = FuseConfig::fast();
+        rounds.registration.refine_rounds = 1;
+        assert!(!rounds.streams_views());
         // a partial document over the fast preset keeps the preset's other keys
         let c = FuseConfig::with_overrides_on(FuseConfig::fast(), &json!({"merge_voxel": {"voxel_size_m": 0.003}}))
             .expect("parse");

@@ -68,7 +68,7 @@ fn registered_views(
     progress: Progress<'_>,
 ) -> Result<(Registered, VoxelMerge)> {
     let r = &config.registration;
-    if r.refine_rounds == 0 && r.joint_levels.is_empty() {
+    if config.streams_views() {
         progress("prepare and register views", 0, STAGES);
         let streamed = register_as_prepared(preparer, r, &config.merge_voxel)?;
         stages.extend(stage_reports(&streamed.tallies, None));
