@@ -22,8 +22,8 @@ pub fn one_arena() {
     }
 }
 
-/// Size from which [`map_view_sized_blocks`] has glibc map a block on its own: a fourth of a
-/// 640 x 480 view's per-point lists at every second pixel is 0.5-1.5 MB.
+/// Size from which [`map_view_sized_blocks`] has glibc map a block on its own: at every second
+/// pixel of a 640 x 480 view, each of the view's per-point lists takes 0.5-1.5 MB.
 const MAPPED_FROM_BYTES: i32 = 512 * 1024;
 
 /// Has glibc map every block of 512 KiB or more on its own, returned to the system when freed,
@@ -32,9 +32,10 @@ const MAPPED_FROM_BYTES: i32 = 512 * 1024;
 /// search's buffers every view's lists come from the heap). Called when a fuse streams its views
 /// (`FuseConfig::streams_views`): each view's lists, a little larger or smaller than the last
 /// view's, then leave no heap holes that the model's lists, growing beside them, cannot reuse.
-/// `awl fuse --preset fast`, 12-view box, 2 threads, 8 alternated runs: peak RSS 34.5 (33.4-37.4)
-/// -> 31.5 (30.9-32.8) MiB in the same wall time (BENCHMARKS.md 57). Not for a fuse that holds
-/// every view (the default): there it mapped 5.7x the pages for 7 % less memory at 12 % more time.
+/// `awl fuse --preset fast`, 12-view box, 2 threads, 14 alternated runs: peak RSS 35.1 (33.3-39.1)
+/// -> 32.1 (30.8-33.3) MiB, for 1.09x the wall time: 3x the page faults (BENCHMARKS.md 57). Not
+/// for a fuse that holds every view (the default): there it cost 1.12x the time for 7 % less
+/// memory.
 pub fn map_view_sized_blocks() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     #[allow(unsafe_code)]
