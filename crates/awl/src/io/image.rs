@@ -7,8 +7,9 @@ use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
 use crate::io::{read_bytes, write_atomic};
 
-fn decoder(path: &Path, bytes: Vec<u8>) -> Result<png::Reader<std::io::Cursor<Vec<u8>>>> {
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+/// The PNG at `path`, read and its header decoded.
+fn decoder(path: &Path) -> Result<png::Reader<std::io::Cursor<Vec<u8>>>> {
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(read_bytes(path)?));
     decoder.set_transformations(png::Transformations::IDENTITY);
     decoder.read_info().map_err(|e| Error::format(path, format!("not a readable PNG: {e}")))
 }
@@ -46,13 +47,36 @@ fn decode_rows(
     Ok(())
 }
 
-/// The PNG's `(width, height)` and the pixel count of its grid of every `step`-th row and column,
-/// once its decoded size is known to fit in memory's address space.
-fn sizes(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>, step: usize) -> Result<((u32, u32), usize)> {
+/// What [`decode_every_nth`] gives.
+struct Pixels<T> {
+    /// Row-major on the grid.
+    data: Vec<T>,
+    /// The grid's `(width, height)`.
+    grid: (u32, u32),
+    /// The file's `(width, height)`.
+    full: (u32, u32),
+}
+
+/// Every `step`-th row and column of the image (from the first; `step` 0 is taken as 1), each
+/// pixel's `bytes_per_pixel` raw bytes made one pixel by `pixel`, on the grid [`every_nth_grid`]
+/// gives.
+fn decode_every_nth<T>(
+    path: &Path,
+    reader: &mut png::Reader<std::io::Cursor<Vec<u8>>>,
+    step: usize,
+    bytes_per_pixel: usize,
+    pixel: impl Fn(&[u8]) -> T,
+) -> Result<Pixels<T>> {
+    let step = step.max(1);
     output_size(path, reader)?;
-    let info = reader.info();
-    let (w, h) = every_nth_grid(info.width as usize, info.height as usize, step);
-    Ok(((info.width, info.height), w * h))
+    let full = (reader.info().width, reader.info().height);
+    let (width, height) = every_nth_grid(full.0 as usize, full.1 as usize, step);
+    let mut data = Vec::with_capacity(width * height);
+    decode_rows(path, reader, step, |row| data.extend(row.chunks_exact(bytes_per_pixel).step_by(step).map(&pixel)))?;
+    if data.len() != width * height {
+        return Err(Error::format(path, "PNG pixel data does not match its size"));
+    }
+    Ok(Pixels { data, grid: (width as u32, height as u32), full })
 }
 
 /// Reads a 16-bit single-channel PNG depth image.
@@ -71,9 +95,7 @@ pub fn read_depth_png(path: &Path) -> Result<DepthImage> {
 /// # Errors
 /// As [`read_depth_png`].
 pub fn read_depth_png_every_nth(path: &Path, step: usize) -> Result<(DepthImage, (u32, u32))> {
-    let step = step.max(1);
-    let bytes = read_bytes(path)?;
-    let mut reader = decoder(path, bytes)?;
+    let mut reader = decoder(path)?;
     let info = reader.info();
     let (color, depth) = (info.color_type, info.bit_depth);
     if color != png::ColorType::Grayscale || depth != png::BitDepth::Sixteen {
@@ -82,16 +104,9 @@ pub fn read_depth_png_every_nth(path: &Path, step: usize) -> Result<(DepthImage,
             format!("depth images must be 16-bit grayscale PNG, this one is {depth:?}-bit {color:?}"),
         ));
     }
-    let (full, pixels) = sizes(path, &reader, step)?;
-    let mut data = Vec::with_capacity(pixels);
-    decode_rows(path, &mut reader, step, |row| {
-        data.extend(row.chunks_exact(2).step_by(step).map(|c| u16::from_be_bytes([c[0], c[1]])));
-    })?;
-    if data.len() != pixels {
-        return Err(Error::format(path, "PNG pixel data does not match its size"));
-    }
-    let (width, height) = every_nth_grid(full.0 as usize, full.1 as usize, step);
-    Ok((DepthImage { width: width as u32, height: height as u32, data }, full))
+    let Pixels { data, grid: (width, height), full } =
+        decode_every_nth(path, &mut reader, step, 2, |c| u16::from_be_bytes([c[0], c[1]]))?;
+    Ok((DepthImage { width, height, data }, full))
 }
 
 /// Reads an 8-bit color PNG (RGB, RGBA or grayscale, alpha dropped) as RGB.
@@ -108,9 +123,7 @@ pub fn read_color_png(path: &Path) -> Result<ColorImage> {
 /// # Errors
 /// As [`read_color_png`].
 pub fn read_color_png_every_nth(path: &Path, step: usize) -> Result<(ColorImage, (u32, u32))> {
-    let step = step.max(1);
-    let bytes = read_bytes(path)?;
-    let mut reader = decoder(path, bytes)?;
+    let mut reader = decoder(path)?;
     let info = reader.info();
     let (color, depth) = (info.color_type, info.bit_depth);
     if depth != png::BitDepth::Eight {
@@ -125,20 +138,10 @@ pub fn read_color_png_every_nth(path: &Path, step: usize) -> Result<(ColorImage,
             return Err(Error::format(path, "indexed-palette PNG is not supported for color images"));
         }
     };
-    let (full, pixels) = sizes(path, &reader, step)?;
-    let mut data: Vec<[u8; 3]> = Vec::with_capacity(pixels);
-    decode_rows(path, &mut reader, step, |row| {
-        data.extend(
-            row.chunks_exact(channels)
-                .step_by(step)
-                .map(|c| if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }),
-        );
+    let Pixels { data, grid: (width, height), full } = decode_every_nth(path, &mut reader, step, channels, |c| {
+        if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }
     })?;
-    if data.len() != pixels {
-        return Err(Error::format(path, "PNG pixel data does not match its size"));
-    }
-    let (width, height) = every_nth_grid(full.0 as usize, full.1 as usize, step);
-    Ok((ColorImage { width: width as u32, height: height as u32, data }, full))
+    Ok((ColorImage { width, height, data }, full))
 }
 
 fn encode(width: u32, height: u32, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Result<Vec<u8>> {
