@@ -187,15 +187,13 @@ impl VoxelAccumulator {
         // Merged in place, from the back: the accumulated lists grow by the added voxels, and the
         // merge writes from the end down. The next write never lands on an unread accumulated
         // voxel (it stays at or above the unread voxels of both lists together), so the memory is
-        // the accumulated voxels plus the added ones, not two copies of the model. The lists grow
-        // by doubling (a new block now and then, not one slightly larger per added cloud).
+        // the accumulated voxels plus the added ones, not two copies of the model. `resize` grows
+        // the lists by doubling (a new block now and then, not one slightly larger per added cloud).
         let (old_len, total) = (self.cloud.len(), self.cloud.len() + new.len());
         let points = &mut self.cloud.points;
-        points.reserve(new.len());
         points.resize(total, Point3::origin());
         let mut normals = self.cloud.normals.as_mut();
         if let Some(ns) = normals.as_deref_mut() {
-            ns.reserve(new.len());
             ns.resize(total, Vector3::zeros());
         }
         let new_normal = |i: usize| new.normals.as_ref().map_or_else(Vector3::zeros, |n| n[i]);
