@@ -2,7 +2,7 @@
 //! estimate its pose (the planar ambiguity resolved by the view's depth points), map it to the world
 //! with the view's registered pose, reject outliers and average (see [`robust_mean`]).
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -10,7 +10,9 @@ use crate::camera::{Intrinsics, PixelRect};
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
 use crate::io::scan::{Scan, TagSpec, ViewData, load_depth_points, read_color};
-use crate::tag::{AprilTagDetector, DetectorParams, TagDetection, TagDetector, estimate_tag_pose, score_depth};
+use crate::tag::{
+    AprilTagDetector, DetectorParams, TagDetection, TagDetector, TagPoseSolution, estimate_tag_pose, score_depth,
+};
 use crate::workpiece::mean::{MeanParams, robust_mean};
 
 /// The only tag family the detector decodes.
@@ -87,7 +89,8 @@ pub struct Sighting {
 pub struct TagEstimate {
     /// The mean `T_world_tag`; None when no view saw the declared tag usably.
     pub world_from_tag: Option<Isometry3<f64>>,
-    /// The views searched for the tag (those with a color image and a registered pose).
+    /// The views searched for the tag: those with a color image and a registered pose (in
+    /// [`search_tags`], less those whose seed camera is behind the tag's face as seen before).
     pub views_checked: Vec<usize>,
     /// Every tag found in those views, used or not.
     pub detections: Vec<ViewTagDetection>,
@@ -127,6 +130,9 @@ struct Posed {
     detection: ViewTagDetection,
     /// The chosen pose solution (None when no pose was estimated).
     camera_from_tag: Option<Isometry3<f64>>,
+    /// The other solution of the planar ambiguity, when distinct and within `max_rmse_px` of the
+    /// corners (as plausible as an accepted detection).
+    camera_from_tag_other: Option<Isometry3<f64>>,
 }
 
 /// Detects and poses the tags of one view (every id; only the declared one gets a pose).
@@ -165,7 +171,7 @@ fn pose_detections(
         };
         if d.id != tag.id {
             det.reason = format!("tag id {} is not the declared id {}", d.id, tag.id);
-            out.push(Posed { detection: det, camera_from_tag: None });
+            out.push(Posed { detection: det, camera_from_tag: None, camera_from_tag_other: None });
             continue;
         }
         let side = shortest_side_px(&d.corners_px);
@@ -173,7 +179,7 @@ fn pose_detections(
             Ok(p) => p,
             Err(e) => {
                 det.reason = format!("no pose: {e}");
-                out.push(Posed { detection: det, camera_from_tag: None });
+                out.push(Posed { detection: det, camera_from_tag: None, camera_from_tag_other: None });
                 continue;
             }
         };
@@ -189,7 +195,9 @@ fn pose_detections(
         } else {
             det.used = true;
         }
-        out.push(Posed { detection: det, camera_from_tag: Some(pose.best.camera_from_tag) });
+        let plausible = |s: &TagPoseSolution| s.rmse_px <= params.max_rmse_px;
+        let camera_from_tag_other = pose.second.filter(plausible).map(|s| s.camera_from_tag);
+        out.push(Posed { detection: det, camera_from_tag: Some(pose.best.camera_from_tag), camera_from_tag_other });
     }
     out
 }
@@ -307,8 +315,41 @@ fn finish(
 pub struct TagSearch {
     /// The tag searched for.
     pub tag: TagSpec,
-    /// Each view searched (those with a color image): its index and what was found in it.
+    /// Each view searched (those with a color image, less those behind the tag's face as seen
+    /// before, by the seed poses): its index and what was found in it.
     views: Vec<(usize, Vec<Posed>)>,
+}
+
+/// A camera more than this beyond the plane of a tag's face (the angle between the face's outward
+/// normal and the direction to the camera; the face turns away at 90°) cannot see the tag, degrees.
+/// The margin covers the seed poses' errors (about 1° and 1-3 cm between views).
+const BEHIND_FACE_DEG: f64 = 100.0;
+
+/// A used detection of the declared tag placed by its view's seed pose: the tag's origin and the
+/// outward normal of each solution of the planar ambiguity, world frame.
+struct SeenFace {
+    origin: Point3<f64>,
+    normals: Vec<Vector3<f64>>,
+}
+
+impl SeenFace {
+    fn of(posed: &Posed, world_from_camera: &Isometry3<f64>) -> Option<Self> {
+        let best = posed.camera_from_tag.filter(|_| posed.detection.used)?;
+        let normal = |t: Isometry3<f64>| (world_from_camera * t) * Vector3::z();
+        let normals = std::iter::once(best).chain(posed.camera_from_tag_other).map(normal).collect();
+        Some(Self { origin: world_from_camera * Point3::from(best.translation.vector), normals })
+    }
+}
+
+/// True when the camera of `world_from_camera` is behind the face of a sighting in `faces`,
+/// whichever of its plausible planar-ambiguity solutions is the right one.
+fn behind_a_face(faces: &[SeenFace], world_from_camera: &Isometry3<f64>) -> bool {
+    let min_cos = BEHIND_FACE_DEG.to_radians().cos();
+    let camera = Point3::from(world_from_camera.translation.vector);
+    faces.iter().any(|f| {
+        let to_camera = (camera - f.origin).normalize();
+        f.normals.iter().all(|n| n.dot(&to_camera) < min_cos)
+    })
 }
 
 /// Searches the color views of `scan` for its declared tag (see [`TagSearch`]): `None` when the
@@ -327,11 +368,19 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     // to the fuse's peak.
     // Each view's depth is decoded only when the declared tag is in its color image (for the
     // planar ambiguity; most views do not see the tag), and back-projected only around the tag:
-    // the depth scores read the points inside its quad alone
-    let views = detect_each(scan.views.len(), &params.detector, 1, |detector, index| {
-        let ViewData::Depth { color: Some(color), .. } = &scan.views[index].data else { return Ok(None) };
+    // the depth scores read the points inside its quad alone. Once the tag is seen, a view whose
+    // seed camera is behind its face is not searched (`BEHIND_FACE_DEG`).
+    let mut detector = AprilTagDetector::new(&params.detector)?;
+    let (mut views, mut faces) = (Vec::new(), Vec::new());
+    for (index, view) in scan.views.iter().enumerate() {
+        let ViewData::Depth { color: Some(color), .. } = &view.data else { continue };
+        let seed = scan.world_from_camera(index).ok();
+        if seed.is_some_and(|seed| behind_a_face(&faces, &seed)) {
+            continue;
+        }
         let image = read_color(scan, camera, color)?;
         let found = detector.detect_color(&image)?;
+        drop(image);
         let corners: Vec<[f64; 2]> = found.iter().filter(|d| d.id == tag.id).flat_map(|d| d.corners_px).collect();
         let points_camera = if corners.is_empty() {
             Vec::new()
@@ -341,8 +390,12 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
             let rect = PixelRect::around(&corners, 2.0, width, height);
             load_depth_points(scan, index, Some(&rect))?.unwrap_or_default()
         };
-        Ok(Some((index, pose_detections(found, index, &points_camera, &camera.intrinsics, tag, params))))
-    })?;
+        let posed = pose_detections(found, index, &points_camera, &camera.intrinsics, tag, params);
+        if let Some(seed) = seed {
+            faces.extend(posed.iter().filter_map(|p| SeenFace::of(p, &seed)));
+        }
+        views.push((index, posed));
+    }
     Ok(Some(TagSearch { tag: tag.clone(), views }))
 }
 
