@@ -190,42 +190,33 @@ fn the_tag_search_skips_only_views_behind_the_tag() {
             "{}",
             case.name
         );
-        let camera = case.scan.camera.expect("camera");
-        let loaded: Vec<_> = skipped.iter().map(|&i| (i, load_view(&case.scan, i, None).expect("view"))).collect();
-        let views: Vec<TagView<'_>> = loaded
-            .iter()
-            .map(|(i, l)| TagView {
-                index: *i,
-                image: l.color.as_ref().expect("color"),
-                points_camera: &l.cloud_camera.points,
-                world_from_camera: case.truth.views[*i].world_from_camera,
-            })
-            .collect();
         let tag = case.scan.tag.clone().expect("tag");
-        let found = estimate_from_views(&views, &camera.intrinsics, &tag, &params).expect("search the skipped views");
+        let found = estimate_on_views(&case, &skipped, &tag).expect("search the skipped views");
         assert!(found.detections.iter().all(|d| d.id != tag.id), "{}: {:?}", case.name, found.detections);
     }
+}
+
+/// The tag estimated from the views `indices` of `case` (full images, TRUE poses), default parameters.
+fn estimate_on_views(case: &Case, indices: &[usize], tag: &TagSpec) -> awl::Result<TagEstimate> {
+    let camera = case.scan.camera.expect("camera");
+    let loaded: Vec<_> = indices.iter().map(|&i| (i, load_view(&case.scan, i, None).expect("view"))).collect();
+    let views: Vec<TagView<'_>> = loaded
+        .iter()
+        .map(|(i, l)| TagView {
+            index: *i,
+            image: l.color.as_ref().expect("color"),
+            points_camera: &l.cloud_camera.points,
+            world_from_camera: case.truth.views[*i].world_from_camera,
+        })
+        .collect();
+    estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default())
 }
 
 #[test]
 fn tag_not_visible_and_wrong_id_are_warnings_and_bad_family_an_error() {
     let case = reference("box_seed1");
-    let camera = case.scan.camera.expect("camera");
     let tag = case.scan.tag.clone().expect("tag");
-    let load = |i: usize| load_view(&case.scan, i, None).expect("view");
-    let run = |indices: &[usize], tag: &TagSpec| {
-        let loaded: Vec<_> = indices.iter().map(|&i| (i, load(i))).collect();
-        let views: Vec<TagView<'_>> = loaded
-            .iter()
-            .map(|(i, l)| TagView {
-                index: *i,
-                image: l.color.as_ref().expect("color"),
-                points_camera: &l.cloud_camera.points,
-                world_from_camera: case.truth.views[*i].world_from_camera,
-            })
-            .collect();
-        estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default())
-    };
+    let run = |indices: &[usize], tag: &TagSpec| estimate_on_views(&case, indices, tag);
     // views 5, 6, 7 do not see the tag (truth: tag_visible false)
     let none = run(&[5, 6, 7], &tag).expect("no error");
     assert!(none.world_from_tag.is_none() && none.detections.is_empty());
