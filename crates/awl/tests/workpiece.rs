@@ -10,7 +10,7 @@ mod common;
 use awl::Error;
 use awl::cloud::PointCloud;
 use awl::filter::voxel::{VoxelParams, downsample};
-use awl::io::scan::{Scan, TagSpec, load_view, read_scan};
+use awl::io::scan::{LoadedView, Scan, TagSpec, load_view, read_scan};
 use awl::io::truth::{Truth, read_truth};
 use awl::io::workpiece::read_workpiece;
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
@@ -51,6 +51,17 @@ fn tag_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64, f6
     (centre_mm, z_deg, estimate.rotation.angle_to(&truth.rotation).to_degrees())
 }
 
+/// View `index` of `case` as the tag estimation takes it, at its TRUE pose (`None` without color).
+fn tag_view<'a>(case: &Case, index: usize, loaded: &'a LoadedView) -> Option<TagView<'a>> {
+    let world_from_camera = case.truth.views[index].world_from_camera;
+    Some(TagView {
+        index,
+        image: loaded.color.as_ref()?,
+        points_camera: &loaded.cloud_camera.points,
+        world_from_camera,
+    })
+}
+
 /// Tag estimate from the views with their TRUE poses, and the same refined on the views' merged
 /// depth points (true poses, 2 mm voxels).
 fn tag_from_true_poses(case: &Case, tag: &TagSpec) -> (TagEstimate, Option<Isometry3<f64>>) {
@@ -58,15 +69,7 @@ fn tag_from_true_poses(case: &Case, tag: &TagSpec) -> (TagEstimate, Option<Isome
     let rays = camera.intrinsics.ray_table();
     let loaded: Vec<_> =
         (0..case.scan.views.len()).map(|i| load_view(&case.scan, i, Some(&rays)).expect("view")).collect();
-    let views: Vec<TagView<'_>> = loaded
-        .iter()
-        .enumerate()
-        .filter_map(|(i, l)| {
-            let image = l.color.as_ref()?;
-            let world_from_camera = case.truth.views[i].world_from_camera;
-            Some(TagView { index: i, image, points_camera: &l.cloud_camera.points, world_from_camera })
-        })
-        .collect();
+    let views: Vec<TagView<'_>> = loaded.iter().enumerate().filter_map(|(i, l)| tag_view(case, i, l)).collect();
     let estimate =
         estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default()).expect("estimate");
     let mut merged = PointCloud::default();
@@ -200,15 +203,7 @@ fn the_tag_search_skips_only_views_behind_the_tag() {
 fn estimate_on_views(case: &Case, indices: &[usize], tag: &TagSpec) -> awl::Result<TagEstimate> {
     let camera = case.scan.camera.expect("camera");
     let loaded: Vec<_> = indices.iter().map(|&i| (i, load_view(&case.scan, i, None).expect("view"))).collect();
-    let views: Vec<TagView<'_>> = loaded
-        .iter()
-        .map(|(i, l)| TagView {
-            index: *i,
-            image: l.color.as_ref().expect("color"),
-            points_camera: &l.cloud_camera.points,
-            world_from_camera: case.truth.views[*i].world_from_camera,
-        })
-        .collect();
+    let views: Vec<TagView<'_>> = loaded.iter().map(|(i, l)| tag_view(case, *i, l).expect("color")).collect();
     estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default())
 }
 

@@ -227,8 +227,8 @@ pub fn estimate_from_views(
     params: &TagEstimateParams,
 ) -> Result<TagEstimate> {
     check_tag_spec(tag)?;
-    let searched = detect_each(views.len(), &params.detector, rayon::current_num_threads(), |detector, k| {
-        Ok(Some((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?)))
+    let searched = detect_each(views.len(), &params.detector, |detector, k| {
+        Ok((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?))
     })?;
     let views_checked = searched.iter().map(|(index, _)| *index).collect();
     finish(searched.into_iter().flat_map(|(_, found)| found).collect(), views_checked, tag, params)
@@ -237,30 +237,24 @@ pub fn estimate_from_views(
 /// A detection and the camera centre of its view (world frame).
 type Found = (ViewTagDetection, Point3<f64>);
 
-/// A view searched (its index and what was found in it), or `None` for a view not searched.
-type Searched<T> = Option<(usize, Vec<T>)>;
-
-/// `detect(detector, k)` for `k` in `0..n`, in parallel on up to `detectors` detectors, each
-/// taking one contiguous run of `k` (a detector's decode table costs as much CPU as a view's
-/// detection; rayon's `map_init` builds one per job, not per thread). The views
-/// searched in order of `k`, each with its index and what was found (`detect` gives them, or
-/// `None` for a view it could not search).
+/// `detect(detector, k)` for `k` in `0..n`, in order of `k`, in parallel on one detector per
+/// thread, each taking one contiguous run of `k` (a detector's decode table costs as much CPU as
+/// a view's detection; rayon's `map_init` builds one per job, not per thread).
 fn detect_each<T: Send>(
     n: usize,
     params: &DetectorParams,
-    detectors: usize,
-    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<Searched<T>> + Sync + Send,
-) -> Result<Vec<(usize, Vec<T>)>> {
+    detect: impl Fn(&mut AprilTagDetector, usize) -> Result<T> + Sync + Send,
+) -> Result<Vec<T>> {
     params.check()?;
-    let run = n.div_ceil(detectors.max(1)).max(1);
-    let runs: Vec<Vec<Searched<T>>> = (0..n.div_ceil(run))
+    let run = n.div_ceil(rayon::current_num_threads().max(1)).max(1);
+    let runs: Vec<Vec<T>> = (0..n.div_ceil(run))
         .into_par_iter()
         .map(|r| {
             let mut detector = AprilTagDetector::new(params)?;
             (r * run..n.min((r + 1) * run)).map(|k| detect(&mut detector, k)).collect()
         })
         .collect::<Result<_>>()?;
-    Ok(runs.into_iter().flatten().flatten().collect())
+    Ok(runs.into_iter().flatten().collect())
 }
 
 fn finish(
