@@ -321,6 +321,51 @@ fn canonical_bitmaps_decode_with_corners_on_the_exact_pixel_edges() {
     assert!(refined < 0.25, "refined corners {refined:.4} px from the exact pixel edges");
 }
 
+/// `image` with every channel scaled by `gain` (a dim scene).
+fn dimmed(image: &ColorImage, gain: f32) -> ColorImage {
+    let data = image.data.iter().map(|p| p.map(|c| (f32::from(c) * gain).round() as u8)).collect();
+    ColorImage { data, ..*image }
+}
+
+/// The default contrast floor (`min_white_black_diff` 20) finds what the C library's 5 finds, bit
+/// for bit, in the real photos and the other simulator's views (scan and shots); in the same views
+/// dimmed to 10 % only the C library's floor (`DetectorParams::thorough`) still finds the tags.
+#[test]
+fn the_default_contrast_floor_finds_what_the_c_librarys_finds() {
+    let default = DetectorParams::default();
+    let thorough = default.thorough().expect("a higher floor than the C library's");
+    assert_eq!(thorough.min_white_black_diff, 5);
+    assert_eq!(thorough.thorough(), None);
+    let (mut fast, mut c_floor) = (detector(), AprilTagDetector::new(&thorough).expect("detector"));
+    let reference = data_dir().join("sim_reference");
+    let mut files: Vec<std::path::PathBuf> =
+        dt_images().iter().map(|(f, ..)| data_dir().join("dt_apriltags").join(f)).collect();
+    for folder in ["box_seed1", "shell_seed1", "box_seed1_shot_tilt30"] {
+        let dir = reference.join(folder).join("color");
+        let mut pngs: Vec<_> = std::fs::read_dir(&dir).expect("color dir").map(|e| e.expect("entry").path()).collect();
+        pngs.sort();
+        files.extend(pngs);
+    }
+    let (mut found, mut dim_fast, mut dim_c) = (0, 0, 0);
+    for path in &files {
+        let image = read_color_png(path).expect("png");
+        let want = c_floor.detect_color(&image).expect("detect");
+        assert_eq!(fast.detect_color(&image).expect("detect"), want, "{}", path.display());
+        found += want.len();
+        if path.starts_with(&reference) {
+            let dim = dimmed(&image, 0.1);
+            dim_fast += fast.detect_color(&dim).expect("detect").len();
+            dim_c += c_floor.detect_color(&dim).expect("detect").len();
+        }
+    }
+    println!(
+        "{} images, {found} detections; dimmed to 10 %: {dim_fast} at the default floor, {dim_c} at 5",
+        files.len()
+    );
+    assert!(files.len() >= 30 && found >= 25, "{} images, {found} detections", files.len());
+    assert!(dim_fast == 0 && dim_c >= 5, "dimmed: {dim_fast} at the default floor, {dim_c} at the C library's");
+}
+
 #[test]
 fn images_without_tags_give_an_empty_list() {
     let mut detector = tags_common::detector();

@@ -10,6 +10,7 @@ mod common;
 use awl::Error;
 use awl::cloud::PointCloud;
 use awl::filter::voxel::{VoxelParams, downsample};
+use awl::io::image::{read_color_png, write_color_png};
 use awl::io::scan::{LoadedView, Scan, TagSpec, load_view, read_scan};
 use awl::io::truth::{Truth, read_truth};
 use awl::io::workpiece::read_workpiece;
@@ -205,6 +206,40 @@ fn estimate_on_views(case: &Case, indices: &[usize], tag: &TagSpec) -> awl::Resu
     let loaded: Vec<_> = indices.iter().map(|&i| (i, load_view(&case.scan, i, None).expect("view"))).collect();
     let views: Vec<TagView<'_>> = loaded.iter().map(|(i, l)| tag_view(case, *i, l).expect("color")).collect();
     estimate_from_views(&views, &camera.intrinsics, tag, &TagEstimateParams::default())
+}
+
+/// A tag too dim for the detector's default contrast floor (the other simulator's box, its colors
+/// scaled to 10 %) is found by the second search at the C library's floor: by [`search_tags`] on
+/// the scan folder and by [`estimate_from_views`] (as `awl pierce` searches its shots).
+#[test]
+fn a_dim_tag_is_found_by_the_second_search() {
+    let case = reference("box_seed1");
+    let tag = case.scan.tag.clone().expect("tag");
+    let truth = case.truth.world_from_tag.expect("T_world_tag");
+    let src = common::shared_data().join("sim_reference").join("box_seed1");
+    let tmp = tempfile::tempdir().expect("tempdir");
+    std::fs::copy(src.join("scan.json"), tmp.path().join("scan.json")).expect("scan.json");
+    std::os::unix::fs::symlink(src.join("depth"), tmp.path().join("depth")).expect("depth");
+    std::fs::create_dir(tmp.path().join("color")).expect("color dir");
+    for entry in std::fs::read_dir(src.join("color")).expect("color") {
+        let path = entry.expect("entry").path();
+        let mut image = read_color_png(&path).expect("png");
+        image.data.iter_mut().for_each(|p| *p = p.map(|c| (f32::from(c) * 0.1).round() as u8));
+        write_color_png(&tmp.path().join("color").join(path.file_name().expect("name")), &image).expect("write");
+    }
+    let dim = Case { scan: read_scan(tmp.path()).expect("dim scan"), ..reference("box_seed1") };
+    let params = TagEstimateParams::default();
+    let poses: Vec<Option<Isometry3<f64>>> = dim.truth.views.iter().map(|v| Some(v.world_from_camera)).collect();
+    let searched =
+        search_tags(&dim.scan, &params).expect("search").expect("a tag").place(&poses, &params).expect("place");
+    let on_views = estimate_on_views(&dim, &[0, 1, 2, 3], &tag).expect("estimate");
+    for (how, estimate) in [("search_tags", searched), ("estimate_from_views", on_views)] {
+        let used = estimate.detections.iter().filter(|d| d.used).count();
+        let t = estimate.world_from_tag.unwrap_or_else(|| panic!("{how}: no tag: {:?}", estimate.warnings));
+        let (mm, _, deg) = tag_error(&t, &truth);
+        println!("dim tag, {how}: {used} views used, {mm:.2} mm, {deg:.2} deg from the truth");
+        assert!(used >= 2 && mm < 5.0 && deg < 1.0, "{how}: {used} views, {mm:.2} mm, {deg:.2} deg");
+    }
 }
 
 #[test]

@@ -216,7 +216,8 @@ fn place(posed: Vec<Posed>, world_from_camera: &Isometry3<f64>) -> Vec<Found> {
 }
 
 /// Estimates `T_world_tag` from in-memory views (see the module docs). Views that do not see the
-/// tag are not errors: the estimate is None and a warning names the views searched.
+/// tag are not errors: the estimate is None and a warning names the views searched. When no view
+/// holds a usable detection, they are searched again with [`DetectorParams::thorough`].
 ///
 /// # Errors
 /// [`Error::Invalid`] for an unsupported tag spec or when the detector cannot run.
@@ -227,9 +228,16 @@ pub fn estimate_from_views(
     params: &TagEstimateParams,
 ) -> Result<TagEstimate> {
     check_tag_spec(tag)?;
-    let searched = detect_each(views.len(), &params.detector, |detector, k| {
-        Ok((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?))
-    })?;
+    let search = |detector_params: &DetectorParams| {
+        detect_each(views.len(), detector_params, |detector, k| {
+            Ok((views[k].index, detect_view(detector, &views[k], intrinsics, tag, params)?))
+        })
+    };
+    let mut searched = search(&params.detector)?;
+    let seen = |searched: &[(usize, Vec<Found>)]| searched.iter().flat_map(|(_, f)| f).any(|(d, _)| d.used);
+    if let Some(thorough) = params.detector.thorough().filter(|_| !seen(&searched)) {
+        searched = search(&thorough)?;
+    }
     let views_checked = searched.iter().map(|(index, _)| *index).collect();
     finish(searched.into_iter().flat_map(|(_, found)| found).collect(), views_checked, tag, params)
 }
@@ -347,7 +355,8 @@ fn behind_a_face(faces: &[SeenFace], world_from_camera: &Isometry3<f64>) -> bool
 }
 
 /// Searches the color views of `scan` for its declared tag (see [`TagSearch`]): `None` when the
-/// scan declares no tag.
+/// scan declares no tag. When no view holds a usable detection, the views are searched again with
+/// [`DetectorParams::thorough`] (a very dim tag).
 ///
 /// # Errors
 /// [`Error::Invalid`] for an unsupported tag spec or when the detector cannot run;
@@ -355,6 +364,22 @@ fn behind_a_face(faces: &[SeenFace], world_from_camera: &Isometry3<f64>) -> bool
 pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<TagSearch>> {
     let Some(tag) = scan.tag.as_ref() else { return Ok(None) };
     check_tag_spec(tag)?;
+    let mut views = search_views(scan, tag, params, &params.detector)?;
+    let seen = |views: &[(usize, Vec<Posed>)]| views.iter().flat_map(|(_, p)| p).any(|p| p.detection.used);
+    if let Some(thorough) = params.detector.thorough().filter(|_| !seen(&views)) {
+        views = search_views(scan, tag, params, &thorough)?;
+    }
+    Ok(Some(TagSearch { tag: tag.clone(), views }))
+}
+
+/// [`search_tags`]'s pass over the views with `detector_params`: each view searched, with what it
+/// holds.
+fn search_views(
+    scan: &Scan,
+    tag: &TagSpec,
+    params: &TagEstimateParams,
+    detector_params: &DetectorParams,
+) -> Result<Vec<(usize, Vec<Posed>)>> {
     let camera = scan.depth_camera()?;
     let (width, height) = (camera.intrinsics.width, camera.intrinsics.height);
     // one detector, the views in turn: the search runs beside the fuse, on the cores the fuse
@@ -364,7 +389,7 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
     // planar ambiguity; most views do not see the tag), and back-projected only around the tag:
     // the depth scores read the points inside its quad alone. Once the tag is seen, a view whose
     // seed camera is behind its face is not searched (`BEHIND_FACE_DEG`).
-    let mut detector = AprilTagDetector::new(&params.detector)?;
+    let mut detector = AprilTagDetector::new(detector_params)?;
     let (mut views, mut faces) = (Vec::new(), Vec::new());
     for (index, view) in scan.views.iter().enumerate() {
         let ViewData::Depth { color: Some(color), .. } = &view.data else { continue };
@@ -390,7 +415,7 @@ pub fn search_tags(scan: &Scan, params: &TagEstimateParams) -> Result<Option<Tag
         }
         views.push((index, posed));
     }
-    Ok(Some(TagSearch { tag: tag.clone(), views }))
+    Ok(views)
 }
 
 impl TagSearch {
