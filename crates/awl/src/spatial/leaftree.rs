@@ -3,7 +3,8 @@
 //! `awl fuse`'s sequential registration, any target not in a camera frame).
 //!
 //! Median splits on the widest axis, 24-48 points a leaf, the coordinates copied in tree order, one
-//! array per axis (a leaf scan is a plain loop), and the box of every node's points. The tree is
+//! array per axis (a leaf scan is a plain loop), the box of every node's points, and each inner
+//! node's split (axis, children's extents along it) for the descent to a query's leaf. The tree is
 //! implicit: node `i`'s children are `2i + 1` and `2i + 2`, its range of tree positions is halved
 //! at each level, so no node stores its range. Distances are `dx² + dy² + dz²` in f32, as
 //! [`super::KdIndex`] computes them, and a box's distance is, in floating point too, at most the
@@ -33,6 +34,18 @@ pub(crate) struct LeafTree {
     /// Index (in the input) of the point at each tree position.
     pub(super) ids: Vec<u32>,
     pub(super) boxes: Vec<Aabb>,
+    /// Of each inner node (leaves hold the default), what the descent to a query's leaf reads: the
+    /// axis its points were split on (the widest of its box), the left child's box's top and the
+    /// right child's box's bottom along it (one small read a level instead of three boxes).
+    splits: Vec<Split>,
+}
+
+/// See [`LeafTree::splits`].
+#[derive(Clone, Copy, Default)]
+struct Split {
+    axis: u32,
+    l_hi: f32,
+    r_lo: f32,
 }
 
 /// The box of a node's points.
@@ -154,7 +167,7 @@ impl LeafTree {
             depth += 1;
         }
         let nodes = (1usize << (depth + 1)) - 1;
-        let mut tree = Self { xs, ys, zs, ids, boxes: vec![Aabb::EMPTY; nodes] };
+        let mut tree = Self { xs, ys, zs, ids, boxes: vec![Aabb::EMPTY; nodes], splits: vec![Split::default(); nodes] };
         if !points.is_empty() {
             tree.fill_boxes(Node { id: 0, start: 0, end: points.len() });
         }
@@ -172,7 +185,11 @@ impl LeafTree {
             let (l, r) = node.children();
             self.fill_boxes(l);
             self.fill_boxes(r);
-            self.boxes[l.id].union(&self.boxes[r.id])
+            let b = self.boxes[l.id].union(&self.boxes[r.id]);
+            let axis = b.widest();
+            self.splits[node.id] =
+                Split { axis: axis as u32, l_hi: self.boxes[l.id].hi[axis], r_lo: self.boxes[r.id].lo[axis] };
+            b
         };
     }
 
@@ -246,8 +263,8 @@ impl LeafTree {
             }
             while !node.is_leaf() {
                 let (l, r) = node.children();
-                let axis = self.boxes[node.id].widest();
-                let (l_hi, r_lo) = (self.boxes[l.id].hi[axis], self.boxes[r.id].lo[axis]);
+                let Split { axis, l_hi, r_lo } = self.splits[node.id];
+                let axis = axis as usize;
                 let (near, far, across) = if q[axis] - l_hi <= r_lo - q[axis] {
                     (l, r, (r_lo - q[axis]).max(0.0))
                 } else {
