@@ -1,12 +1,13 @@
 //! [`VoxelMerge`]: the voxel down-sampling of a union of clouds, added one by one, without holding
-//! the union: each part is kept sorted by voxel key, and the parts are merged in one pass at the
-//! end. The output is [`super::voxel::downsample`]'s of the parts concatenated in rank order, bit
+//! the union: each part is kept sorted by voxel key, and the parts are merged at the end, in
+//! chunks of the key range side by side. The output is [`super::voxel::downsample`]'s of the parts concatenated in rank order, bit
 //! for bit in its points and colors (same runs in the same point order, same sums), its normals
 //! within 0.01 deg: the parts keep their normals in 32 bits (octahedral, [`pack_normal`]) instead
 //! of 96, so the parts hold 19 bytes a point instead of 27. All in the memory of the parts and the
 //! output (the concatenation and the sort of the whole union would add ~2.3x the output).
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use super::voxel::{Grid, VoxelParams, mean_color, mean_normal, mean_point, runs};
 use crate::cloud::{Bounds, PointCloud};
@@ -68,6 +69,16 @@ impl Part {
     fn point(&self, i: usize) -> &Point3<f32> {
         let (block, j) = self.at(i);
         &block.cloud.points[j]
+    }
+
+    /// The index of the part's first point whose voxel key is `key` or past it.
+    fn first_at_or_past(&self, grid: &Grid, key: [i64; 3]) -> usize {
+        let (mut lo, mut hi) = (0, self.len);
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if grid.key(self.point(mid)) < key { lo = mid + 1 } else { hi = mid }
+        }
+        lo
     }
 
     fn has_normals(&self) -> bool {
@@ -167,56 +178,108 @@ impl VoxelMerge {
         let grid = Grid::new(&bounds, self.params.voxel_size_m)?;
         let with_normals = parts.iter().all(|p| p.has_normals());
         let with_colors = parts.iter().all(|p| p.has_colors());
-        // a first pass counts the voxels, so the output is allocated once, at its size
-        let mut voxels = 0;
-        for_each_voxel(&parts, &grid, |_| voxels += 1);
+        // the key range cut at keys of the largest part into chunks merged side by side (a voxel's
+        // points all fall in one chunk: the same voxels, in the same order, as one pass), each
+        // counted first, so the output is allocated once, at its size, and filled in place
+        let chunks = chunks(&parts, &grid);
+        let counts: Vec<usize> = chunks
+            .par_windows(2)
+            .map(|c| {
+                let mut voxels = 0;
+                for_each_voxel(&parts, &grid, &c[0], &c[1], |_| voxels += 1);
+                voxels
+            })
+            .collect();
+        let voxels = counts.iter().sum();
         let mut out = PointCloud {
-            points: Vec::with_capacity(voxels),
-            normals: with_normals.then(|| Vec::with_capacity(voxels)),
-            colors: with_colors.then(|| Vec::with_capacity(voxels)),
+            points: vec![Point3::origin(); voxels],
+            normals: with_normals.then(|| vec![Vector3::zeros(); voxels]),
+            colors: with_colors.then(|| vec![[0; 3]; voxels]),
         };
-        // one voxel's points, normals and colors in union order, and the indices 0.. over them
-        let (mut points, mut normals, mut colors) = (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
-        let mut run: Vec<usize> = Vec::new();
-        for_each_voxel(&parts, &grid, |members| {
-            points.clear();
-            points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
-            run.extend(run.len()..members.len());
-            let run = &run[..members.len()];
-            out.points.push(mean_point(&points, run));
-            if let Some(out) = out.normals.as_mut() {
-                normals.clear();
-                normals.extend(members.iter().filter_map(|&(k, i)| {
-                    let (block, j) = parts[k].at(i);
-                    Some(unpack_normal(block.normals.as_ref()?[j]))
-                }));
-                out.push(mean_normal(&normals, run));
-            }
-            if let Some(out) = out.colors.as_mut() {
-                colors.clear();
-                colors.extend(members.iter().filter_map(|&(k, i)| {
-                    let (block, j) = parts[k].at(i);
-                    Some(block.cloud.colors.as_ref()?[j])
-                }));
-                out.push(mean_color(&colors, run));
-            }
-        });
+        let mut slices = Vec::with_capacity(counts.len());
+        let (mut points, mut normals, mut colors) =
+            (&mut out.points[..], out.normals.as_deref_mut(), out.colors.as_deref_mut());
+        for &n in &counts {
+            let (p, rest) = std::mem::take(&mut points).split_at_mut(n);
+            points = rest;
+            let (n_chunk, n_rest) = normals.take().map(|x| x.split_at_mut(n)).unzip();
+            normals = n_rest;
+            let (c_chunk, c_rest) = colors.take().map(|x| x.split_at_mut(n)).unzip();
+            colors = c_rest;
+            slices.push((p, n_chunk, c_chunk));
+        }
+        slices.into_par_iter().zip(chunks.par_windows(2)).for_each(
+            |((points_out, mut normals_out, mut colors_out), c)| {
+                // one voxel's points, normals and colors in union order, and the indices 0.. over them
+                let (mut points, mut normals, mut colors) =
+                    (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
+                let mut run: Vec<usize> = Vec::new();
+                let mut v = 0;
+                for_each_voxel(&parts, &grid, &c[0], &c[1], |members| {
+                    points.clear();
+                    points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
+                    run.extend(run.len()..members.len());
+                    let run = &run[..members.len()];
+                    points_out[v] = mean_point(&points, run);
+                    if let Some(out) = normals_out.as_deref_mut() {
+                        normals.clear();
+                        normals.extend(members.iter().filter_map(|&(k, i)| {
+                            let (block, j) = parts[k].at(i);
+                            Some(unpack_normal(block.normals.as_ref()?[j]))
+                        }));
+                        out[v] = mean_normal(&normals, run);
+                    }
+                    if let Some(out) = colors_out.as_deref_mut() {
+                        colors.clear();
+                        colors.extend(members.iter().filter_map(|&(k, i)| {
+                            let (block, j) = parts[k].at(i);
+                            Some(block.cloud.colors.as_ref()?[j])
+                        }));
+                        out[v] = mean_color(&colors, run);
+                    }
+                    v += 1;
+                });
+            },
+        );
         Ok(out)
     }
 }
+
+/// Chunks of the merge: [`CHUNKS`] + 1 cuts, each the index in every part of its first point at or
+/// past a key of the largest part (the first cut all 0, the last every part's length).
+fn chunks(parts: &[&Part], grid: &Grid) -> Vec<Vec<usize>> {
+    let Some(largest) = parts.iter().max_by_key(|p| p.len) else { return Vec::new() };
+    let mut cuts = vec![vec![0; parts.len()]];
+    for c in 1..CHUNKS {
+        let key = grid.key(largest.point(largest.len * c / CHUNKS));
+        cuts.push(parts.iter().map(|p| p.first_at_or_past(grid, key)).collect());
+    }
+    cuts.push(parts.iter().map(|p| p.len).collect());
+    cuts
+}
+
+/// Chunks the merge is cut into (any number gives the same output).
+const CHUNKS: usize = 16;
 
 /// The box around both boxes.
 fn joined(a: Bounds, b: Bounds) -> Bounds {
     Bounds { min: a.min.inf(&b.min), max: a.max.sup(&b.max) }
 }
 
-/// Walks the union of `parts` (each sorted by (voxel key, index)) voxel by voxel in key order,
-/// giving `voxel` each voxel's points as (part, index) in union order (parts in order, then index).
-fn for_each_voxel(parts: &[&Part], grid: &Grid, mut voxel: impl FnMut(&[(usize, usize)])) {
-    let mut heads = vec![0; parts.len()];
+/// Walks the union of `parts` (each sorted by (voxel key, index)) between the cuts `from` and `to`
+/// (an index per part) voxel by voxel in key order, giving `voxel` each voxel's points as (part,
+/// index) in union order (parts in order, then index).
+fn for_each_voxel(
+    parts: &[&Part],
+    grid: &Grid,
+    from: &[usize],
+    to: &[usize],
+    mut voxel: impl FnMut(&[(usize, usize)]),
+) {
+    let mut heads = from.to_vec();
     // each part's next point's key
-    let next = |k: usize, head: usize| (head < parts[k].len).then(|| grid.key(parts[k].point(head)));
-    let mut keys: Vec<Option<[i64; 3]>> = (0..parts.len()).map(|k| next(k, 0)).collect();
+    let next = |k: usize, head: usize| (head < to[k]).then(|| grid.key(parts[k].point(head)));
+    let mut keys: Vec<Option<[i64; 3]>> = (0..parts.len()).map(|k| next(k, heads[k])).collect();
     let mut members = Vec::new();
     while let Some(key) = keys.iter().flatten().min().copied() {
         members.clear();
