@@ -1,10 +1,11 @@
 //! [`VoxelMerge`]: the voxel down-sampling of a union of clouds, added one by one, without holding
 //! the union: each part is kept sorted by voxel key, and the parts are merged at the end, in
-//! chunks of the key range side by side. The output is [`super::voxel::downsample`]'s of the parts concatenated in rank order, bit
-//! for bit in its points and colors (same runs in the same point order, same sums), its normals
-//! within 0.01 deg: the parts keep their normals in 32 bits (octahedral, [`pack_normal`]) instead
-//! of 96, so the parts hold 19 bytes a point instead of 27. All in the memory of the parts and the
-//! output (the concatenation and the sort of the whole union would add ~2.3x the output).
+//! chunks of the key range side by side. The output is [`super::voxel::downsample`]'s of the
+//! parts concatenated in rank order, bit for bit in its points and colors (same runs in the same
+//! point order, same sums), its normals within 0.01 deg: the parts keep their normals in 32 bits
+//! (octahedral, [`pack_normal`]) instead of 96, so the parts hold 19 bytes a point instead of 27.
+//! All in the memory of the parts and the output (the concatenation and the sort of the whole
+//! union would add ~2.3x the output).
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -196,53 +197,66 @@ impl VoxelMerge {
             normals: with_normals.then(|| vec![Vector3::zeros(); voxels]),
             colors: with_colors.then(|| vec![[0; 3]; voxels]),
         };
-        let mut slices = Vec::with_capacity(counts.len());
-        let (mut points, mut normals, mut colors) =
-            (&mut out.points[..], out.normals.as_deref_mut(), out.colors.as_deref_mut());
-        for &n in &counts {
-            let (p, rest) = std::mem::take(&mut points).split_at_mut(n);
-            points = rest;
-            let (n_chunk, n_rest) = normals.take().map(|x| x.split_at_mut(n)).unzip();
-            normals = n_rest;
-            let (c_chunk, c_rest) = colors.take().map(|x| x.split_at_mut(n)).unzip();
-            colors = c_rest;
-            slices.push((p, n_chunk, c_chunk));
-        }
-        slices.into_par_iter().zip(chunks.par_windows(2)).for_each(
-            |((points_out, mut normals_out, mut colors_out), c)| {
-                // one voxel's points, normals and colors in union order, and the indices 0.. over them
-                let (mut points, mut normals, mut colors) =
-                    (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
-                let mut run: Vec<usize> = Vec::new();
-                let mut v = 0;
-                for_each_voxel(&parts, &grid, &c[0], &c[1], |members| {
-                    points.clear();
-                    points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
-                    run.extend(run.len()..members.len());
-                    let run = &run[..members.len()];
-                    points_out[v] = mean_point(&points, run);
-                    if let Some(out) = normals_out.as_deref_mut() {
-                        normals.clear();
-                        normals.extend(members.iter().filter_map(|&(k, i)| {
-                            let (block, j) = parts[k].at(i);
-                            Some(unpack_normal(block.normals.as_ref()?[j]))
-                        }));
-                        out[v] = mean_normal(&normals, run);
-                    }
-                    if let Some(out) = colors_out.as_deref_mut() {
-                        colors.clear();
-                        colors.extend(members.iter().filter_map(|&(k, i)| {
-                            let (block, j) = parts[k].at(i);
-                            Some(block.cloud.colors.as_ref()?[j])
-                        }));
-                        out[v] = mean_color(&colors, run);
-                    }
-                    v += 1;
-                });
-            },
-        );
+        let slices = split_at_counts(&mut out, &counts);
+        slices
+            .into_par_iter()
+            .zip(chunks.par_windows(2))
+            .for_each(|(slice, c)| merge_chunk(&parts, &grid, &c[0], &c[1], slice));
         Ok(out)
     }
+}
+
+/// A chunk's slices of the output.
+type ChunkOut<'a> = (&'a mut [Point3<f32>], Option<&'a mut [Vector3<f32>]>, Option<&'a mut [[u8; 3]]>);
+
+/// `out`'s points, normals and colors cut into consecutive slices of `counts` entries.
+fn split_at_counts<'a>(out: &'a mut PointCloud, counts: &[usize]) -> Vec<ChunkOut<'a>> {
+    let (mut points, mut normals, mut colors) =
+        (&mut out.points[..], out.normals.as_deref_mut(), out.colors.as_deref_mut());
+    let mut slices = Vec::with_capacity(counts.len());
+    for &n in counts {
+        let (p, rest) = std::mem::take(&mut points).split_at_mut(n);
+        points = rest;
+        let (n_chunk, n_rest) = normals.take().map(|x| x.split_at_mut(n)).unzip();
+        normals = n_rest;
+        let (c_chunk, c_rest) = colors.take().map(|x| x.split_at_mut(n)).unzip();
+        colors = c_rest;
+        slices.push((p, n_chunk, c_chunk));
+    }
+    slices
+}
+
+/// The voxels of `parts` between the cuts `from` and `to`, one a slot of `out`.
+fn merge_chunk(parts: &[&Part], grid: &Grid, from: &[usize], to: &[usize], out: ChunkOut<'_>) {
+    let (points_out, mut normals_out, mut colors_out) = out;
+    // one voxel's points, normals and colors in union order, and the indices 0.. over them
+    let (mut points, mut normals, mut colors) = (Vec::<Point3<f32>>::new(), Vec::<Vector3<f32>>::new(), Vec::new());
+    let mut run: Vec<usize> = Vec::new();
+    let mut v = 0;
+    for_each_voxel(parts, grid, from, to, |members| {
+        points.clear();
+        points.extend(members.iter().map(|&(k, i)| *parts[k].point(i)));
+        run.extend(run.len()..members.len());
+        let run = &run[..members.len()];
+        points_out[v] = mean_point(&points, run);
+        if let Some(out) = normals_out.as_deref_mut() {
+            normals.clear();
+            normals.extend(members.iter().filter_map(|&(k, i)| {
+                let (block, j) = parts[k].at(i);
+                Some(unpack_normal(block.normals.as_ref()?[j]))
+            }));
+            out[v] = mean_normal(&normals, run);
+        }
+        if let Some(out) = colors_out.as_deref_mut() {
+            colors.clear();
+            colors.extend(members.iter().filter_map(|&(k, i)| {
+                let (block, j) = parts[k].at(i);
+                Some(block.cloud.colors.as_ref()?[j])
+            }));
+            out[v] = mean_color(&colors, run);
+        }
+        v += 1;
+    });
 }
 
 /// Chunks of the merge: [`CHUNKS`] + 1 cuts, each the index in every part of its first point at or
