@@ -321,12 +321,6 @@ fn canonical_bitmaps_decode_with_corners_on_the_exact_pixel_edges() {
     assert!(refined < 0.25, "refined corners {refined:.4} px from the exact pixel edges");
 }
 
-/// `image` with every channel scaled by `gain` (a dim scene).
-fn dimmed(image: &ColorImage, gain: f32) -> ColorImage {
-    let data = image.data.iter().map(|p| p.map(|c| (f32::from(c) * gain).round() as u8)).collect();
-    ColorImage { data, ..*image }
-}
-
 /// The default contrast floor (`min_white_black_diff` 20) finds what the C library's 5 finds, bit
 /// for bit, in the real photos and the other simulator's views (scan and shots); in the same views
 /// dimmed to 10 % only the C library's floor (`DetectorParams::thorough`) still finds the tags.
@@ -353,7 +347,7 @@ fn the_default_contrast_floor_finds_what_the_c_librarys_finds() {
         assert_eq!(fast.detect_color(&image).expect("detect"), want, "{}", path.display());
         found += want.len();
         if path.starts_with(&reference) {
-            let dim = dimmed(&image, 0.1);
+            let dim = common::dimmed(&image, 0.1);
             dim_fast += fast.detect_color(&dim).expect("detect").len();
             dim_c += c_floor.detect_color(&dim).expect("detect").len();
         }

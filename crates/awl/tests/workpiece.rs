@@ -63,6 +63,11 @@ fn tag_view<'a>(case: &Case, index: usize, loaded: &'a LoadedView) -> Option<Tag
     })
 }
 
+/// Every view's TRUE pose, as [`awl::workpiece::TagSearch::place`] takes the fuse's.
+fn true_poses(case: &Case) -> Vec<Option<Isometry3<f64>>> {
+    case.truth.views.iter().map(|v| Some(v.world_from_camera)).collect()
+}
+
 /// Tag estimate from the views with their TRUE poses, and the same refined on the views' merged
 /// depth points (true poses, 2 mm voxels).
 fn tag_from_true_poses(case: &Case, tag: &TagSpec) -> (TagEstimate, Option<Isometry3<f64>>) {
@@ -137,7 +142,7 @@ fn the_tag_search_before_the_poses_gives_the_estimate_of_the_views_with_their_po
     let params = TagEstimateParams::default();
     let (in_memory, _) = tag_from_true_poses(&case, &tag);
     let search = search_tags(&case.scan, &params).expect("search").expect("the scan declares a tag");
-    let poses: Vec<Option<Isometry3<f64>>> = case.truth.views.iter().map(|v| Some(v.world_from_camera)).collect();
+    let poses = true_poses(&case);
     let placed = search.place(&poses, &params).expect("place");
     // the same detections, though the views behind the tag were not searched (see below)
     assert_eq!(placed.detections, in_memory.detections);
@@ -182,8 +187,7 @@ fn the_tag_search_skips_only_views_behind_the_tag() {
     for case in [reference("shell_seed1"), own(SceneKind::Box)] {
         let params = TagEstimateParams::default();
         let search = search_tags(&case.scan, &params).expect("search").expect("the scan declares a tag");
-        let poses: Vec<Option<Isometry3<f64>>> = case.truth.views.iter().map(|v| Some(v.world_from_camera)).collect();
-        let checked = search.place(&poses, &params).expect("place").views_checked;
+        let checked = search.place(&true_poses(&case), &params).expect("place").views_checked;
         let skipped: Vec<usize> = (0..case.scan.views.len()).filter(|i| !checked.contains(i)).collect();
         let (behind, beyond_the_plane) = (behind_the_tag(&case, 95.0), behind_the_tag(&case, 90.0));
         println!("{}: views skipped {skipped:?}, behind the face by > 95 deg {behind:?}", case.name);
@@ -223,15 +227,16 @@ fn a_dim_tag_is_found_by_the_second_search() {
     std::fs::create_dir(tmp.path().join("color")).expect("color dir");
     for entry in std::fs::read_dir(src.join("color")).expect("color") {
         let path = entry.expect("entry").path();
-        let mut image = read_color_png(&path).expect("png");
-        image.data.iter_mut().for_each(|p| *p = p.map(|c| (f32::from(c) * 0.1).round() as u8));
-        write_color_png(&tmp.path().join("color").join(path.file_name().expect("name")), &image).expect("write");
+        let dim = common::dimmed(&read_color_png(&path).expect("png"), 0.1);
+        write_color_png(&tmp.path().join("color").join(path.file_name().expect("name")), &dim).expect("write");
     }
-    let dim = Case { scan: read_scan(tmp.path()).expect("dim scan"), ..reference("box_seed1") };
+    let dim = Case { scan: read_scan(tmp.path()).expect("dim scan"), ..case };
     let params = TagEstimateParams::default();
-    let poses: Vec<Option<Isometry3<f64>>> = dim.truth.views.iter().map(|v| Some(v.world_from_camera)).collect();
-    let searched =
-        search_tags(&dim.scan, &params).expect("search").expect("a tag").place(&poses, &params).expect("place");
+    let searched = search_tags(&dim.scan, &params)
+        .expect("search")
+        .expect("a tag")
+        .place(&true_poses(&dim), &params)
+        .expect("place");
     let on_views = estimate_on_views(&dim, &[0, 1, 2, 3], &tag).expect("estimate");
     for (how, estimate) in [("search_tags", searched), ("estimate_from_views", on_views)] {
         let used = estimate.detections.iter().filter(|d| d.used).count();

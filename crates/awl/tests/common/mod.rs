@@ -17,10 +17,16 @@ pub fn shared_data() -> PathBuf {
     dir
 }
 
+/// `image` with every channel scaled by `gain` (a dim scene).
+pub fn dimmed(image: &ColorImage, gain: f32) -> ColorImage {
+    let data = image.data.iter().map(|p| p.map(|c| (f32::from(c) * gain).round() as u8)).collect();
+    ColorImage { data, ..*image }
+}
+
 use awl::PointCloud;
 use awl::camera::DepthCamera;
 use awl::eval::{MeshDistance, cad_metrics, trajectory_error_mm, visible_samples};
-use awl::image::DepthImage;
+use awl::image::{ColorImage, DepthImage};
 use awl::mesh::TriMesh;
 use awl::normals::{NormalParams, with_normals};
 use awl::pipeline::FuseOutput;
