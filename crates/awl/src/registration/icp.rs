@@ -49,9 +49,11 @@ pub struct IcpParams {
     /// Reject correspondences whose normals differ by more than this (either sign), radians.
     /// Used only when the source has normals. Default 60 degrees.
     pub max_normal_angle_rad: Option<f64>,
-    /// A level has converged when a step moves less than this, metres. Default 1e-5.
+    /// The finest level has converged when a step moves less than this, metres; a coarser level
+    /// when it moves less than this times its voxel over the finest level's (see
+    /// [`IcpParams::level_convergence`]). Default 1e-5.
     pub convergence_translation_m: f64,
-    /// A level has converged when a step rotates less than this, radians. Default 1e-5.
+    /// Likewise for the rotation of a step, radians. Default 1e-5.
     pub convergence_rotation_rad: f64,
     /// At most this many source points per level (an even, deterministic stride over the
     /// down-sampled source); bounds the cost on dense views. Default 20 000.
@@ -78,6 +80,19 @@ impl Default for IcpParams {
 }
 
 impl IcpParams {
+    /// Level `k`'s convergence thresholds (translation m, rotation rad): the given ones scaled by
+    /// the level's voxel over the finest level's (at least 1). A coarse level only has to bring the
+    /// source into the next level's reach, and a step far below its voxel is below what its
+    /// down-sampled clouds resolve: 15 mm voxels over a 6 mm finest level stop at 2.5x the
+    /// thresholds (BENCHMARKS.md 63).
+    #[must_use]
+    pub fn level_convergence(&self, k: usize) -> (f64, f64) {
+        let finest = self.levels.last().map_or(0.0, |l| l.voxel_m);
+        let voxel = self.levels.get(k).map_or(0.0, |l| l.voxel_m);
+        let scale = if finest > 0.0 { (voxel / finest).max(1.0) } else { 1.0 };
+        (scale * self.convergence_translation_m, scale * self.convergence_rotation_rad)
+    }
+
     /// Checks the values that have no meaning out of range: the kernel scale, the gates and the
     /// convergence thresholds (finite, the scale and the tangential gate positive, the rest at least
     /// 0); a NaN threshold would never converge, a NaN gate would drop every correspondence.
@@ -228,10 +243,12 @@ struct LevelData<'a> {
 /// last linear system.
 fn run_level(
     data: &LevelData,
-    level: &IcpLevel,
+    k: usize,
     params: &IcpParams,
     mut t: Isometry3<f64>,
 ) -> (Isometry3<f64>, LevelStats, System) {
+    let level = &params.levels[k];
+    let (converged_m, converged_rad) = params.level_convergence(k);
     let LevelData { src, tgt, index } = data;
     let normals = tgt.normals.as_deref().unwrap_or_default();
     let target_l = Target { points: &tgt.points, normals, index };
@@ -260,7 +277,7 @@ fn run_level(
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
         let (motion, moved_m, turned_rad) = step_motion(&delta, &centre, length);
         t = motion * t;
-        if turned_rad < params.convergence_rotation_rad && moved_m < params.convergence_translation_m {
+        if turned_rad < converged_rad && moved_m < converged_m {
             converged = true;
             break;
         }
@@ -334,10 +351,10 @@ fn run<'a>(
         Ok(LevelData { src, tgt, index })
     };
     let mut next = (!params.levels.is_empty()).then(|| build(0)).transpose()?;
-    for (k, level) in params.levels.iter().enumerate() {
+    for k in 0..params.levels.len() {
         let Some(data) = next.take() else { break };
         let ((moved_to, stats, s), built) = rayon::join(
-            || run_level(&data, level, params, t),
+            || run_level(&data, k, params, t),
             || (k + 1 < params.levels.len()).then(|| build(k + 1)).transpose(),
         );
         next = built?;
@@ -362,6 +379,26 @@ fn run<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_coarse_level_converges_at_thresholds_scaled_by_its_voxel() {
+        let level = |voxel_m| IcpLevel { voxel_m, max_correspondence_m: 0.03, max_iterations: 30 };
+        let params = IcpParams {
+            levels: vec![level(0.015), level(0.006), level(0.003)],
+            convergence_translation_m: 1e-4,
+            convergence_rotation_rad: 2e-4,
+            ..IcpParams::default()
+        };
+        let close = |(m, rad): (f64, f64), want: (f64, f64)| (m - want.0).abs() < 1e-12 && (rad - want.1).abs() < 1e-12;
+        assert!(close(params.level_convergence(0), (5e-4, 1e-3)), "{:?}", params.level_convergence(0));
+        assert!(close(params.level_convergence(1), (2e-4, 4e-4)), "{:?}", params.level_convergence(1));
+        assert!(close(params.level_convergence(2), (1e-4, 2e-4)), "{:?}", params.level_convergence(2));
+        // a level finer than the last, or a last level without down-sampling: the thresholds as given
+        let odd = IcpParams { levels: vec![level(0.002), level(0.004)], ..params.clone() };
+        assert!(close(odd.level_convergence(0), (1e-4, 2e-4)));
+        let raw = IcpParams { levels: vec![level(0.01), level(0.0)], ..params };
+        assert!(close(raw.level_convergence(0), (1e-4, 2e-4)));
+    }
 
     #[test]
     fn out_of_range_thresholds_and_gates_are_refused_by_name() {
