@@ -16,6 +16,7 @@ pub mod image;
 pub mod io;
 pub mod mesh;
 pub mod normals;
+pub mod octahedral;
 pub mod organized;
 pub mod pierce;
 pub mod pipeline;

@@ -187,13 +187,16 @@ impl VoxelAccumulator {
         // Merged in place, from the back: the accumulated lists grow by the added voxels, and the
         // merge writes from the end down. The next write never lands on an unread accumulated
         // voxel (it stays at or above the unread voxels of both lists together), so the memory is
-        // the accumulated voxels plus the added ones, not two copies of the model. `resize` grows
-        // the lists by doubling (a new block now and then, not one slightly larger per added cloud).
+        // the accumulated voxels plus the added ones, not two copies of the model. The lists grow
+        // by the added voxels exactly and are cut to the merged ones after (no spare capacity: the
+        // finest level's lists are the sequential pass's largest).
         let (old_len, total) = (self.cloud.len(), self.cloud.len() + new.len());
         let points = &mut self.cloud.points;
+        points.reserve_exact(new.len());
         points.resize(total, Point3::origin());
         let mut normals = self.cloud.normals.as_mut();
         if let Some(ns) = normals.as_deref_mut() {
+            ns.reserve_exact(new.len());
             ns.resize(total, Vector3::zeros());
         }
         let new_normal = |i: usize| new.normals.as_ref().map_or_else(Vector3::zeros, |n| n[i]);
@@ -238,9 +241,11 @@ impl VoxelAccumulator {
         // the merged voxels are [w, total): moved to the front
         points.copy_within(w.., 0);
         points.truncate(total - w);
+        points.shrink_to_fit();
         if let Some(ns) = normals {
             ns.copy_within(w.., 0);
             ns.truncate(total - w);
+            ns.shrink_to_fit();
         }
         Ok(())
     }

@@ -3,7 +3,7 @@
 //! chunks of the key range side by side. The output is [`super::voxel::downsample`]'s of the
 //! parts concatenated in rank order, bit for bit in its points and colors (same runs in the same
 //! point order, same sums), its normals within 0.01 deg: the parts keep their normals in 32 bits
-//! (octahedral, [`pack_normal`]) instead of 96, so the parts hold 19 bytes a point instead of 27.
+//! (octahedral, [`crate::octahedral`]) instead of 96, so the parts hold 19 bytes a point instead of 27.
 //! All in the memory of the parts and the output (the concatenation and the sort of the whole
 //! union would add ~2.3x the output).
 
@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::voxel::{Grid, VoxelParams, mean_color, mean_normal, mean_point, runs};
 use crate::cloud::{Bounds, PointCloud};
 use crate::error::Result;
+use crate::octahedral::{PackedNormal, pack_normal, unpack_normal};
 
 /// Clouds to down-sample together; see the module docs.
 #[derive(Debug, Clone)]
@@ -35,7 +36,7 @@ struct Part {
     len: usize,
 }
 
-/// A block of a part: its points and colors, and its normals packed ([`pack_normal`]).
+/// A block of a part: its points and colors, and its normals packed ([`crate::octahedral`]).
 #[derive(Debug, Clone, Default)]
 struct Block {
     /// Points and colors (no normals).
@@ -95,43 +96,6 @@ impl Part {
     }
 }
 
-/// A unit normal in 32 bits: its octahedral coordinates (the normal over its L1 norm, the lower
-/// half folded over the upper) in steps of 1/32767, within 0.005 deg of the normal; a normal
-/// without a direction (zero, non-finite) packs to [`NO_NORMAL`].
-type PackedNormal = [i16; 2];
-
-/// The packed zero normal (no octahedral coordinate reaches -32768).
-const NO_NORMAL: PackedNormal = [i16::MIN; 2];
-
-fn sign(a: f32) -> f32 {
-    if a < 0.0 { -1.0 } else { 1.0 }
-}
-
-/// The octahedral fold of the lower half (z < 0) onto the square's corners; its own inverse.
-fn fold(u: f32, v: f32) -> (f32, f32) {
-    ((1.0 - v.abs()) * sign(u), (1.0 - u.abs()) * sign(v))
-}
-
-fn pack_normal(n: &Vector3<f32>) -> PackedNormal {
-    let l1 = n.x.abs() + n.y.abs() + n.z.abs();
-    if !(l1 > 0.0 && l1.is_finite()) {
-        return NO_NORMAL;
-    }
-    let (u, v) = if n.z < 0.0 { fold(n.x / l1, n.y / l1) } else { (n.x / l1, n.y / l1) };
-    let q = |a: f32| (a.clamp(-1.0, 1.0) * 32767.0).round() as i16;
-    [q(u), q(v)]
-}
-
-fn unpack_normal(p: PackedNormal) -> Vector3<f32> {
-    if p == NO_NORMAL {
-        return Vector3::zeros();
-    }
-    let (u, v) = (f32::from(p[0]) / 32767.0, f32::from(p[1]) / 32767.0);
-    let z = 1.0 - u.abs() - v.abs();
-    let (x, y) = if z < 0.0 { fold(u, v) } else { (u, v) };
-    Vector3::new(x, y, z).normalize()
-}
-
 impl VoxelMerge {
     /// An empty union.
     ///
@@ -152,6 +116,13 @@ impl VoxelMerge {
         let part = Part::new(cloud, order.as_ref().map(|(order, _)| order.as_slice()));
         self.parts.push((rank, part));
         Ok(())
+    }
+
+    /// Adds `other`'s parts, with their ranks (a union built in parallel pieces; `other` at the
+    /// same voxel size).
+    pub fn append(&mut self, mut other: VoxelMerge) {
+        debug_assert_eq!(self.params, other.params);
+        self.parts.append(&mut other.parts);
     }
 
     /// The number of points added.
@@ -367,32 +338,6 @@ mod tests {
 
     /// Packed normals come back within 0.005 deg, on both halves, the axes and the fold's edges;
     /// a normal without a direction comes back zero.
-    #[test]
-    fn normals_pack_into_32_bits() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-        let mut normals: Vec<Vector3<f32>> = (0..200_000)
-            .map(|_| Vector3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5))
-            .filter(|n| n.norm() > 1e-3)
-            .map(|n| n.normalize())
-            .collect();
-        for (x, y, z) in [(1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)] {
-            normals.push(Vector3::new(x, y, z));
-        }
-        normals.extend([Vector3::new(0.0, 0.0, -1.0), Vector3::new(0.6, 0.8, -0.0), Vector3::new(0.6, -0.8, -1e-7)]);
-        let worst = normals
-            .iter()
-            .map(|n| {
-                let back = unpack_normal(pack_normal(n));
-                assert!((back.norm() - 1.0).abs() < 1e-6, "{n:?} -> {back:?}");
-                back.cast::<f64>().angle(&n.cast()).to_degrees()
-            })
-            .fold(0.0, f64::max);
-        assert!(worst < 0.005, "{worst} deg");
-        for bad in [Vector3::zeros(), Vector3::new(f32::NAN, 0.0, 1.0), Vector3::new(f32::INFINITY, 0.0, 0.0)] {
-            assert_eq!(unpack_normal(pack_normal(&bad)), Vector3::zeros());
-        }
-    }
-
     #[test]
     fn empty_and_bad_input() {
         let params = VoxelParams { voxel_size_m: 0.01 };

@@ -20,11 +20,21 @@ use crate::normals::{NormalParams, covariance, orient_towards, plane_of};
 use crate::organized::{self, Cleaned, PixelGrid};
 use crate::spatial::{KdIndex, KnnTable, Neighbor};
 
+/// What [`clean_on_grid`] gives.
+pub(crate) struct OnGrid {
+    /// The points to register: the measured ones, or their smoothed copies (no colors).
+    pub cloud: PointCloud,
+    /// The measured points when `cloud` holds their smoothed copies.
+    pub measured: Option<PointCloud>,
+    /// The index in the input cloud of each measured point (ascending).
+    pub sources: Vec<usize>,
+}
+
 /// A depth view's cloud without its statistical outliers, with unit normals oriented toward the
 /// camera (the origin; points whose normal is undefined dropped): both from each point's window of
 /// `(2 half + 1)^2` pixels on `grid` (see `organized`). With `smoothing_m`, the points come back
 /// moved onto their local planes (at most that far, see `organized::onto_local_planes`; no colors),
-/// and the measured ones beside them: `(smoothed, Some(measured))`; else `(measured, None)`.
+/// and the measured ones beside them.
 ///
 /// # Errors
 /// Bad parameters, a non-finite cloud, a grid that is not the cloud's. (`smoothing_m` is checked
@@ -36,33 +46,42 @@ pub(crate) fn clean_on_grid(
     sor: &SorParams,
     params: &NormalParams,
     smoothing_m: Option<f64>,
-) -> Result<(PointCloud, Option<PointCloud>)> {
+) -> Result<OnGrid> {
     let Cleaned { sor, normals, centroids } = organized::clean(&cloud, &grid, half, sor, params)?;
     drop(grid);
     let mut measured = cloud;
     measured.retain_indices(&sor.kept);
+    let valid = defined(&normals);
+    let sources = valid.iter().map(|&j| sor.kept[j]).collect();
     let Some(max_shift) = smoothing_m else {
-        return Ok((with_oriented_normals(measured, normals, &Point3::origin())?, None));
+        let cloud = with_oriented_normals(measured, normals, &Point3::origin(), &valid)?;
+        return Ok(OnGrid { cloud, measured: None, sources });
     };
     let points = organized::onto_local_planes(&measured.points, &normals, &centroids, max_shift as f32);
     let smoothed = PointCloud { points, normals: None, colors: None };
-    Ok((
-        with_oriented_normals(smoothed, normals.clone(), &Point3::origin())?,
-        Some(with_oriented_normals(measured, normals, &Point3::origin())?),
-    ))
+    Ok(OnGrid {
+        cloud: with_oriented_normals(smoothed, normals.clone(), &Point3::origin(), &valid)?,
+        measured: Some(with_oriented_normals(measured, normals, &Point3::origin(), &valid)?),
+        sources,
+    })
 }
 
-/// `cloud` with `normals` (one per point) turned toward `viewpoint`, without the points whose
-/// normal is undefined (zero).
+/// The indices of the normals that are defined (not zero; turning a normal keeps it so).
+fn defined(normals: &[Vector3<f32>]) -> Vec<usize> {
+    (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect()
+}
+
+/// `cloud` with `normals` (one per point) turned toward `viewpoint`, only its points at `valid`
+/// (those whose normal is defined, [`defined`]) kept.
 fn with_oriented_normals(
     mut cloud: PointCloud,
     mut normals: Vec<Vector3<f32>>,
     viewpoint: &Point3<f32>,
+    valid: &[usize],
 ) -> Result<PointCloud> {
     orient_towards(&cloud.points, &mut normals, viewpoint)?;
-    let valid: Vec<usize> = (0..normals.len()).filter(|&j| normals[j] != Vector3::zeros()).collect();
     cloud.normals = Some(normals);
-    cloud.retain_indices(&valid);
+    cloud.retain_indices(valid);
     Ok(cloud)
 }
 
@@ -108,7 +127,8 @@ pub(crate) fn clean_with_normals(
             fit.map_or_else(Vector3::zeros, |(n, _)| n.cast::<f32>())
         })
         .collect();
-    with_oriented_normals(out, normals, &viewpoint)
+    let valid = defined(&normals);
+    with_oriented_normals(out, normals, &viewpoint, &valid)
 }
 
 /// The `k` nearest kept points (indices in the kept cloud) from a row of the full table, into `buf`;

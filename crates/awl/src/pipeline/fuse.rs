@@ -3,11 +3,12 @@
 use std::time::Instant;
 
 use nalgebra::Isometry3;
+use rayon::prelude::*;
 
 use super::config::FuseConfig;
 use super::isolate::{drop_floor, keep_object};
 use super::multiview::{Registered, no_usable_view, register_views};
-use super::prepare::{Preparer, Views, prepare, stage_reports};
+use super::prepare::{Measured, Preparer, Views, prepare, stage_reports};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
 use super::stream::register_as_prepared;
 use crate::cloud::PointCloud;
@@ -46,27 +47,54 @@ fn timed<T>(
 }
 
 /// The views' measured points at their registered poses (world frame), to be merged at `voxel`.
-/// Each view is moved in place, its registration copy (smoothed, when `registration_smoothing_m`
-/// is set) freed first.
-pub(super) fn world_parts(views: Views, poses: &[Option<Isometry3<f64>>], voxel: &VoxelParams) -> Result<VoxelMerge> {
-    let mut parts = VoxelMerge::new(voxel)?;
-    for (i, (view, pose)) in views.into_iter().zip(poses).enumerate() {
-        if let (Ok(view), Some(pose)) = (view, pose) {
-            parts.add(i, view.into_measured().into_transformed(pose))?;
-        }
-    }
-    Ok(parts)
+/// Each view's registration copy is freed first; measured points not held beside it are read
+/// again by their recipe (see [`Preparer::measured`]), the views in parallel.
+pub(super) fn world_parts(
+    preparer: &Preparer<'_>,
+    views: Views,
+    poses: &[Option<Isometry3<f64>>],
+    voxel: &VoxelParams,
+) -> Result<VoxelMerge> {
+    let merged: Vec<(usize, Measured, Isometry3<f64>)> = (views.into_iter().zip(poses).enumerate())
+        .filter_map(|(i, (view, pose))| Some((i, view.ok()?.into_measured(), (*pose)?)))
+        .collect();
+    let empty = VoxelMerge::new(voxel)?;
+    merged
+        .into_par_iter()
+        .map(|(i, measured, pose)| Ok((i, preparer.measured(i, measured)?.into_transformed(&pose))))
+        .try_fold(
+            || empty.clone(),
+            |mut parts, view: Result<(usize, PointCloud)>| {
+                let (i, cloud) = view?;
+                parts.add(i, cloud)?;
+                Ok(parts)
+            },
+        )
+        .try_reduce(
+            || empty.clone(),
+            |mut a, b| {
+                a.append(b);
+                Ok(a)
+            },
+        )
+}
+
+/// What the merge starts from: the merged views' measured points already at their poses, or the
+/// views themselves (the registration's copies) when the registration held them all.
+enum ToMerge {
+    Parts(VoxelMerge),
+    Views(Views),
 }
 
 /// Prepares and registers the views: as they are prepared when the poses are final once each view
 /// is judged (no refinement rounds, no joint refinement; see `stream`), otherwise all views first.
-/// Returns the registration and the merged views' measured points (world frame), to be merged.
+/// Returns the registration and what the merge starts from.
 fn registered_views(
     preparer: &Preparer<'_>,
     config: &FuseConfig,
     stages: &mut Vec<StageReport>,
     progress: Progress<'_>,
-) -> Result<(Registered, VoxelMerge)> {
+) -> Result<(Registered, ToMerge)> {
     let r = &config.registration;
     if config.streams_views() {
         progress("prepare and register views", 0, STAGES);
@@ -79,7 +107,7 @@ fn registered_views(
             points_out: merged,
             seconds: streamed.register_seconds,
         });
-        return Ok((streamed.registered, streamed.parts));
+        return Ok((streamed.registered, ToMerge::Parts(streamed.parts)));
     }
     progress("prepare views", 0, STAGES);
     let views = prepare(preparer, stages);
@@ -94,8 +122,7 @@ fn registered_views(
         let merged = r.poses.iter().filter(|p| p.is_some()).count();
         Ok((r, merged))
     })?;
-    let parts = world_parts(views, &registered.poses, &config.merge_voxel)?;
-    Ok((registered, parts))
+    Ok((registered, ToMerge::Views(views)))
 }
 
 /// Runs the whole modeling pipeline on `scan` (see the module docs of `pipeline`).
@@ -113,7 +140,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     if config.roi.radius_m.is_some() && focus.is_none() {
         warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
     }
-    let (registered, parts) = registered_views(&preparer, config, &mut stages, progress)?;
+    let (registered, to_merge) = registered_views(&preparer, config, &mut stages, progress)?;
     let skipped = registered.reports.iter().filter(|r| r.status == ViewStatus::Skipped);
     warnings.extend(skipped.map(|r| format!("view {} skipped: {}", r.index, r.reason)));
     if registered.reports.iter().filter(|r| r.status != ViewStatus::Skipped).count() == 1 {
@@ -130,11 +157,15 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         }
     }
     progress("merge", 5, STAGES);
-    let merged = timed(&mut stages, "merge", parts.len(), || {
-        let model = parts.downsample()?;
-        let n = model.len();
-        Ok((model, n))
-    })?;
+    let merge_start = Instant::now();
+    let parts = match to_merge {
+        ToMerge::Parts(parts) => parts,
+        ToMerge::Views(views) => world_parts(&preparer, views, &registered.poses, &config.merge_voxel)?,
+    };
+    let points_in = parts.len();
+    let merged = parts.downsample()?;
+    let seconds = merge_start.elapsed().as_secs_f64();
+    stages.push(StageReport { name: "merge".into(), points_in, points_out: merged.len(), seconds });
     progress("isolate object", 6, STAGES);
     let (n_in, mut floor, mut clusters) = (merged.len(), None, None);
     let isolated = timed(&mut stages, "floor + clusters", n_in, || {

@@ -4,13 +4,19 @@
 //! grid (`organized`, a positive `pixel_window`, the default), before the voxel grid (which averages
 //! the normals); a cloud view (or any view with `pixel_window = 0`) is down-sampled first, then
 //! cleaned with one k-NN pass (`clean`). The views run in parallel, each through all the stages.
+//!
+//! A depth view registered on smoothed copies of its points (`registration_smoothing_m`) has two
+//! copies: the registration's and the measured points the model is made of. A fuse that holds
+//! every view for its joint refinement keeps only a [`Recipe`] of the measured ones (which loaded
+//! points, their normals packed: ~4 bytes a point instead of 27) and loads the view again for the
+//! merge: on a 12-view box, peak RSS 193 -> 134 MB in the same time (BENCHMARKS.md 64).
 
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::clean::{clean_on_grid, clean_with_normals};
+use super::clean::{OnGrid, clean_on_grid, clean_with_normals};
 use super::config::FuseConfig;
 use super::report::StageReport;
 use crate::camera::every_nth_grid;
@@ -19,6 +25,7 @@ use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
 use crate::io::scan::{LoadedView, Scan, load_view_every_nth};
+use crate::octahedral::{PackedNormal, pack_all, unpack_normal};
 use crate::organized::PixelGrid;
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
@@ -30,16 +37,67 @@ pub(crate) struct PreparedView {
     pub cloud: PointCloud,
     /// Until the voxel grid: for a depth view, the pixel (`v * width + u`) of every point.
     pub pixels: Option<Vec<u32>>,
-    /// The measured points (camera frame, down-sampled and cleaned as `cloud`) when `cloud` holds
-    /// their smoothed copies for the registration (`registration_smoothing_m`).
-    pub measured: Option<PointCloud>,
+    /// The measured points (camera frame, cleaned and down-sampled as `cloud`), or how to read
+    /// them again, when `cloud` holds their smoothed copies for the registration
+    /// (`registration_smoothing_m`); `None`: `cloud` holds them.
+    pub measured: Option<Measured>,
+}
+
+/// A prepared view's measured points, or what reads them again.
+pub(crate) enum Measured {
+    Points(PointCloud),
+    Recipe(Recipe),
+}
+
+/// Which of a view's loaded points (those of [`Preparer::loaded`]) are its measured points, and their
+/// normals (packed): enough to read them again ([`Preparer::measured`]), in ~4 bytes a point
+/// instead of 27.
+pub(crate) struct Recipe {
+    /// Points the view loads.
+    loaded: usize,
+    /// Bit `k % 64` of word `k / 64` set: loaded point `k` is a measured point.
+    kept: Vec<u64>,
+    /// The measured points' normals (before the voxel grid), in order.
+    normals: Vec<PackedNormal>,
+}
+
+impl Recipe {
+    fn new(loaded: usize, sources: &[usize], normals: &[Vector3<f32>]) -> Self {
+        let mut kept = vec![0u64; loaded.div_ceil(64)];
+        for &k in sources {
+            kept[k / 64] |= 1 << (k % 64);
+        }
+        Self { loaded, kept, normals: pack_all(normals) }
+    }
+
+    /// The measured points of `cloud`, the view loaded again, with their normals.
+    fn apply(&self, mut cloud: PointCloud) -> Option<PointCloud> {
+        if cloud.len() != self.loaded {
+            return None;
+        }
+        let keep: Vec<usize> = (0..self.loaded).filter(|&k| self.kept[k / 64] >> (k % 64) & 1 == 1).collect();
+        cloud.retain_indices(&keep);
+        (keep.len() == self.normals.len()).then(|| {
+            cloud.normals = Some(self.normals.iter().map(|&n| unpack_normal(n)).collect());
+            cloud
+        })
+    }
 }
 
 impl PreparedView {
-    /// The points the model is made of: the measured ones.
-    pub(crate) fn into_measured(self) -> PointCloud {
-        self.measured.unwrap_or(self.cloud)
+    /// The points the model is made of: the measured ones, or what reads them again.
+    pub(crate) fn into_measured(self) -> Measured {
+        self.measured.unwrap_or(Measured::Points(self.cloud))
     }
+}
+
+/// The copies of a view's points the per-view stages hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Copies {
+    /// The registration's (smoothed, with `registration_smoothing_m`) and the measured points.
+    Both,
+    /// The registration's, and the measured points' [`Recipe`] when they differ.
+    Registration,
 }
 
 /// One entry per scan view: the prepared view, or why it cannot be used.
@@ -76,17 +134,33 @@ fn non_empty(view: PreparedView, after: &str) -> Result<PreparedView> {
 /// A view with pixels (a depth view, `pixel_window` > 0) is cleaned on its pixel grid, then
 /// down-sampled; otherwise the view is down-sampled, then cleaned with one k-NN pass (see `clean`),
 /// unless it came with its own normals, which are kept.
-fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, height: usize) -> Result<PreparedView> {
+fn cleaned_and_oriented(
+    view: PreparedView,
+    config: &FuseConfig,
+    (width, height): (usize, usize),
+    copies: Copies,
+) -> Result<PreparedView> {
     let PreparedView { seed, cloud, pixels, .. } = view;
     let mut measured = None;
     let cloud = match pixels {
         Some(pixels) => {
-            let grid = PixelGrid::new(width, height, pixels)?;
+            let (loaded, grid) = (cloud.len(), PixelGrid::new(width, height, pixels)?);
             let smoothing = config.registration_smoothing_m;
-            let (cleaned, m) =
+            let on_grid =
                 clean_on_grid(cloud, grid, config.pixel_window, &config.outliers, &config.normals, smoothing)?;
+            let OnGrid { cloud: cleaned, measured: m, mut sources } = on_grid;
             let thinned = |c| downsample(&without_grazing(c, config.max_incidence_rad), &config.view_voxel);
-            measured = m.map(thinned).transpose()?;
+            measured = match (m, copies) {
+                (None, _) => None,
+                (Some(m), Copies::Both) => Some(Measured::Points(thinned(m)?)),
+                (Some(mut m), Copies::Registration) => {
+                    if let Some(keep) = grazing_keep(&m, config.max_incidence_rad) {
+                        m.retain_indices(&keep);
+                        retain_at(&mut sources, &keep);
+                    }
+                    Some(Measured::Recipe(Recipe::new(loaded, &sources, m.normals.as_deref().unwrap_or_default())))
+                }
+            };
             thinned(cleaned)?
         }
         None => {
@@ -109,13 +183,18 @@ fn cleaned_and_oriented(view: PreparedView, config: &FuseConfig, width: usize, h
 /// The points seen at more than `max_incidence_rad` between their normal and the ray to the
 /// camera (at the origin) dropped.
 fn without_grazing(mut cloud: PointCloud, max_incidence_rad: Option<f64>) -> PointCloud {
-    let (Some(max), Some(normals)) = (max_incidence_rad, cloud.normals.as_ref()) else { return cloud };
-    let min_cos = max.cos() as f32;
-    let keep: Vec<usize> = (0..cloud.len())
-        .filter(|&i| normals[i].dot(&(-cloud.points[i].coords)) >= min_cos * cloud.points[i].coords.norm())
-        .collect();
-    cloud.retain_indices(&keep);
+    if let Some(keep) = grazing_keep(&cloud, max_incidence_rad) {
+        cloud.retain_indices(&keep);
+    }
     cloud
+}
+
+/// The points [`without_grazing`] keeps; `None`: all of them (no limit, or no normals).
+fn grazing_keep(cloud: &PointCloud, max_incidence_rad: Option<f64>) -> Option<Vec<usize>> {
+    let (Some(max), Some(normals)) = (max_incidence_rad, cloud.normals.as_ref()) else { return None };
+    let min_cos = max.cos() as f32;
+    let p = &cloud.points;
+    Some((0..cloud.len()).filter(|&i| normals[i].dot(&(-p[i].coords)) >= min_cos * p[i].coords.norm()).collect())
 }
 
 /// The point nearest to every view's optical axis (least squares), world frame; `None` when the
@@ -164,6 +243,8 @@ pub(crate) struct Preparer<'a> {
     rays: Option<Vec<[f32; 2]>>,
     /// The grid of the kept pixels (`pixel_step`), width and height.
     grid: (usize, usize),
+    /// Whether a prepared view holds its measured points beside their smoothed copies.
+    copies: Copies,
     /// The region of interest: radius and focus point (world frame).
     roi: Option<(f64, Point3<f64>)>,
     /// The point the cameras look at (see [`focus_point`]), when a region of interest is asked for.
@@ -179,7 +260,9 @@ impl<'a> Preparer<'a> {
         let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
         let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
         let roi = config.roi.radius_m.zip(focus);
-        Self { scan, config, rays, grid, roi, focus }
+        // held beside the registration's copies only when each view is merged as it registers
+        let copies = if config.streams_views() { Copies::Both } else { Copies::Registration };
+        Self { scan, config, rays, grid, copies, roi, focus }
     }
 
     /// The number of views of the scan.
@@ -192,11 +275,60 @@ impl<'a> Preparer<'a> {
         self.scan.world_from_camera(i).ok()
     }
 
-    /// View `i` through the per-view stages, and its points and time per stage.
+    /// View `i` through the per-view stages, and its points and time per stage. Its measured points are held only when the fuse streams its views
+    /// ([`FuseConfig::streams_views`]); otherwise, when they differ from the registration's copies,
+    /// the view holds their [`Recipe`], for [`Preparer::measured`].
     pub(crate) fn view(&self, i: usize) -> (std::result::Result<PreparedView, String>, Tally) {
         let mut tally = Tally::default();
-        let view = prepare_view(self.scan, i, self.rays.as_deref(), self.config, self.roi, self.grid, &mut tally);
-        (view, tally)
+        (self.prepare(i, self.copies, &mut tally), tally)
+    }
+
+    /// View `i`'s measured points (camera frame): held, or read again by their recipe (the view
+    /// loaded again, its measured points taken and down-sampled: the same points bit for bit, the
+    /// normals within 0.005 deg).
+    ///
+    /// # Errors
+    /// [`crate::Error::Invalid`] naming the view when it can no longer be read as it was (its files
+    /// changed during the fuse); voxel errors.
+    pub(crate) fn measured(&self, i: usize, measured: Measured) -> Result<PointCloud> {
+        let recipe = match measured {
+            Measured::Points(points) => return Ok(points),
+            Measured::Recipe(recipe) => recipe,
+        };
+        let changed = |e: String| crate::Error::invalid(format!("view {i}"), format!("read again: {e}"));
+        let view = self.loaded(i, &mut Tally::default());
+        let cloud = recipe.apply(view.map_err(changed)?.cloud).ok_or_else(|| changed("its points changed".into()))?;
+        downsample(&cloud, &self.config.view_voxel)
+    }
+    /// View `i` through the per-view stages: load and region of interest ([`Preparer::loaded`]),
+    /// cleaning on the grid of the kept pixels, plane-normal snap.
+    fn prepare(&self, i: usize, copies: Copies, tally: &mut Tally) -> std::result::Result<PreparedView, String> {
+        let mut view = self.loaded(i, tally)?;
+        view = timed(2, tally, view, |v| cleaned_and_oriented(v, self.config, self.grid, copies))?;
+        if let Some(params) = &self.config.snap_plane {
+            view = timed(3, tally, view, |v| snap_plane_normals(v, params))?;
+        }
+        Ok(view)
+    }
+
+    /// View `i` loaded (depth -> points, range crop; every `pixel_step`-th row and column), then
+    /// cropped to the region of interest.
+    fn loaded(&self, i: usize, tally: &mut Tally) -> std::result::Result<PreparedView, String> {
+        let load_start = Instant::now();
+        let loaded = load_view_every_nth(self.scan, i, self.rays.as_deref(), self.config.pixel_step)
+            .map_err(|e| e.to_string())?;
+        // the points carry their colors: the color image is not kept
+        let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color } = loaded;
+        drop(color);
+        let pixels = pixels.filter(|_| self.config.pixel_window > 0);
+        let view = PreparedView { seed, cloud, pixels, measured: None };
+        let n = view.cloud.len();
+        tally[0] = Some((n, n, load_start.elapsed().as_secs_f64()));
+        let mut view = non_empty(view, "the depth range crop").map_err(|e| e.to_string())?;
+        if let Some((radius, focus)) = self.roi {
+            view = timed(1, tally, view, |v| within(v, radius, focus))?;
+        }
+        Ok(view)
     }
 }
 
@@ -236,37 +368,6 @@ pub(crate) fn prepare(preparer: &Preparer<'_>, reports: &mut Vec<StageReport>) -
     views
 }
 
-/// View `i` through the per-view stages: load, region of interest (`roi`: radius and focus point,
-/// world frame), cleaning on the `width` x `height` grid of the kept pixels, plane-normal snap.
-fn prepare_view(
-    scan: &Scan,
-    i: usize,
-    rays: Option<&[[f32; 2]]>,
-    config: &FuseConfig,
-    roi: Option<(f64, Point3<f64>)>,
-    (width, height): (usize, usize),
-    tally: &mut Tally,
-) -> std::result::Result<PreparedView, String> {
-    let load_start = Instant::now();
-    let loaded = load_view_every_nth(scan, i, rays, config.pixel_step).map_err(|e| e.to_string())?;
-    // the points carry their colors: the color image is not kept
-    let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color } = loaded;
-    drop(color);
-    let pixels = pixels.filter(|_| config.pixel_window > 0);
-    let view = PreparedView { seed, cloud, pixels, measured: None };
-    let n = view.cloud.len();
-    tally[0] = Some((n, n, load_start.elapsed().as_secs_f64()));
-    let mut view = non_empty(view, "the depth range crop").map_err(|e| e.to_string())?;
-    if let Some((radius, focus)) = roi {
-        view = timed(1, tally, view, |v| within(v, radius, focus))?;
-    }
-    view = timed(2, tally, view, |v| cleaned_and_oriented(v, config, width, height))?;
-    if let Some(params) = &config.snap_plane {
-        view = timed(3, tally, view, |v| snap_plane_normals(v, params))?;
-    }
-    Ok(view)
-}
-
 /// The view's points within `radius` of `focus` (world frame).
 fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<PreparedView> {
     let r2 = (radius * radius) as f32;
@@ -277,4 +378,52 @@ fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<Prepar
         retain_at(pixels, &keep);
     }
     non_empty(v, "the region-of-interest crop")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::scan::{ViewData, read_scan};
+    use crate::sim::{SceneKind, SimParams, simulate, write_simulation};
+
+    /// A view's measured points read again by their recipe are those the view would hold: the
+    /// same points and colors bit for bit, the normals within 0.01 deg; a view whose files changed
+    /// since is an error naming it.
+    #[test]
+    fn measured_points_read_again_are_the_held_ones() {
+        let sim = simulate(&SimParams { views: 3, seed: 5, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("scan");
+        write_simulation(&path, &sim, false).expect("write");
+        let scan = read_scan(&path).expect("read");
+        let config = FuseConfig::default();
+        let preparer = Preparer::new(&scan, &config);
+        assert_eq!(preparer.copies, Copies::Registration, "the default holds every view");
+        let prepare =
+            |i, copies| preparer.prepare(i, copies, &mut Tally::default()).unwrap_or_else(|e| panic!("view {i}: {e}"));
+        let mut recipes = Vec::new();
+        for i in 0..3 {
+            let (held, registered) = (prepare(i, Copies::Both), prepare(i, Copies::Registration));
+            assert_eq!(held.cloud, registered.cloud, "view {i}: the registration's copies");
+            let Some(Measured::Points(want)) = held.measured else { panic!("view {i}: measured points held") };
+            let Some(recipe @ Measured::Recipe(_)) = registered.measured else { panic!("view {i}: a recipe") };
+            let got = preparer.measured(i, recipe).expect("read again");
+            assert!(want.len() > 10_000, "view {i}: {} points", want.len());
+            assert_eq!((&got.points, &got.colors), (&want.points, &want.colors), "view {i}");
+            let (got, want) = (got.normals.expect("normals"), want.normals.expect("normals"));
+            let worst =
+                got.iter().zip(&want).map(|(a, b)| a.cast::<f64>().angle(&b.cast()).to_degrees()).fold(0.0, f64::max);
+            assert!(worst < 0.01, "view {i}: normals {worst} deg apart");
+            recipes.push(prepare(i, Copies::Registration).measured);
+        }
+        // view 2's depth image replaced by view 0's: its points are no longer those of its recipe
+        let depth = |i: usize| match &scan.views[i].data {
+            ViewData::Depth { depth, .. } => scan.dir.join(depth),
+            _ => panic!("a depth view"),
+        };
+        std::fs::copy(depth(0), depth(2)).expect("replace view 2's depth");
+        let Some(recipe) = recipes.pop().flatten() else { panic!("a recipe") };
+        let err = preparer.measured(2, recipe).expect_err("changed").to_string();
+        assert!(err.contains("view 2") && err.contains("read again"), "{err}");
+    }
 }

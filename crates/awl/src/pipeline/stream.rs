@@ -86,7 +86,7 @@ pub(crate) fn register_as_prepared(
         |i: usize, view: PreparedView, pose: Isometry3<f64>, model: &mut LevelModel, report: &mut ViewReport| {
             model.add(&view.cloud.transformed(&pose))?;
             place(report, &view, &pose);
-            parts.add(i, view.into_measured().into_transformed(&pose))?;
+            parts.add(i, preparer.measured(i, view.into_measured())?.into_transformed(&pose))?;
             poses[i] = Some(pose);
             Ok::<_, crate::Error>(())
         };
@@ -171,7 +171,7 @@ mod tests {
             let count = |s: ViewStatus| want.reports.iter().filter(|r| r.status == s).count();
             assert_eq!(count(ViewStatus::Skipped), 1);
             // the same model: the merge of the same views' measured points at the same poses
-            let want_model = world_parts(all, &want.poses, &config.merge_voxel).expect("parts").downsample();
+            let want_model = world_parts(&preparer, all, &want.poses, &config.merge_voxel).expect("parts").downsample();
             let got_model = got.parts.downsample().expect("merged");
             assert!(got_model.len() > 20_000, "{} points", got_model.len());
             assert_eq!(got_model, want_model.expect("merged"));
