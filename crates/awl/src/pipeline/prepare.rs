@@ -49,8 +49,8 @@ pub(crate) enum Measured {
     Recipe(Recipe),
 }
 
-/// Which of a view's loaded points (those of [`Preparer::loaded`]) are its measured points, and their
-/// normals (packed): enough to read them again ([`Preparer::measured`]), in ~4 bytes a point
+/// Which of a view's loaded points (those of [`Preparer::loaded`]) are its measured points, and
+/// their normals (packed): enough to read them again ([`Preparer::measured`]), in ~4 bytes a point
 /// instead of 27.
 pub(crate) struct Recipe {
     /// Points the view loads.
@@ -275,9 +275,10 @@ impl<'a> Preparer<'a> {
         self.scan.world_from_camera(i).ok()
     }
 
-    /// View `i` through the per-view stages, and its points and time per stage. Its measured points are held only when the fuse streams its views
-    /// ([`FuseConfig::streams_views`]); otherwise, when they differ from the registration's copies,
-    /// the view holds their [`Recipe`], for [`Preparer::measured`].
+    /// View `i` through the per-view stages, and its points and time per stage. Its measured
+    /// points are held only when the fuse streams its views ([`FuseConfig::streams_views`]);
+    /// otherwise, when they differ from the registration's copies, the view holds their
+    /// [`Recipe`], for [`Preparer::measured`].
     pub(crate) fn view(&self, i: usize) -> (std::result::Result<PreparedView, String>, Tally) {
         let mut tally = Tally::default();
         (self.prepare(i, self.copies, &mut tally), tally)
@@ -300,6 +301,7 @@ impl<'a> Preparer<'a> {
         let cloud = recipe.apply(view.map_err(changed)?.cloud).ok_or_else(|| changed("its points changed".into()))?;
         downsample(&cloud, &self.config.view_voxel)
     }
+
     /// View `i` through the per-view stages: load and region of interest ([`Preparer::loaded`]),
     /// cleaning on the grid of the kept pixels, plane-normal snap.
     fn prepare(&self, i: usize, copies: Copies, tally: &mut Tally) -> std::result::Result<PreparedView, String> {
