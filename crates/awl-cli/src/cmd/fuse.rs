@@ -27,7 +27,7 @@ pub struct FuseArgs {
     pub config: Option<PathBuf>,
     /// The parameters the config file starts from: `accurate` (sub-millimetre on the simulated
     /// scans, a few seconds) or `fast` (every second pixel, coarser voxels, no joint refinement:
-    /// about 5x faster, 1.5-2 mm).
+    /// about 6x faster, 0.4-1.6 mm).
     #[arg(long, value_enum, default_value_t = Preset::Accurate)]
     pub preset: Preset,
     /// Worker threads (default: all cores). Results are identical for any count.

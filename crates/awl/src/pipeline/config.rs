@@ -253,10 +253,13 @@ impl Default for FuseConfig {
 }
 
 impl FuseConfig {
-    /// The `fast` preset: a quick model at 1.5-2 mm instead of the defaults' 0.6 mm. Every second
-    /// pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model, the
-    /// default's two coarse sequential ICP levels (15 mm, 6 mm), no joint refinement, and MLS onto
-    /// planes (on the 4 mm model, quadrics fit the noise: 0.06 mm worse on 8 scans) (BENCHMARKS.md 46).
+    /// The `fast` preset: a quick model, 0.4-1.6 mm RMSE on 8 simulated scans instead of the
+    /// defaults' 0.4-0.7 mm (registered without the joint refinement, a box's views stay 1-4 mm
+    /// apart). Every second pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model,
+    /// the default's two coarse sequential ICP levels (15 mm, 6 mm), no joint refinement, and MLS
+    /// onto planes (on the 4 mm model, quadrics fit the noise: 0.06 mm worse on 8 scans) within
+    /// 10 mm: a median 32 model points, where the default's 6 mm holds 11 and leaves 14 % of the
+    /// points (fewer than 8) as they are (1.35 mm instead of 1.98 on box seed 1; BENCHMARKS.md 46, 65).
     #[must_use]
     pub fn fast() -> Self {
         let default = Self::default();
@@ -269,7 +272,7 @@ impl FuseConfig {
             view_voxel: VoxelParams { voxel_size_m: 0.005 },
             merge_voxel: VoxelParams { voxel_size_m: 0.004 },
             registration,
-            smoothing: default.smoothing.map(|mls| MlsParams { polynomial: false, ..mls }),
+            smoothing: default.smoothing.map(|mls| MlsParams { radius_m: 0.010, polynomial: false, ..mls }),
             ..default
         }
     }
