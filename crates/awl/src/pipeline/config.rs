@@ -255,11 +255,12 @@ impl Default for FuseConfig {
 impl FuseConfig {
     /// The `fast` preset: a quick model, 0.4-1.6 mm RMSE on 8 simulated scans instead of the
     /// defaults' 0.4-0.7 mm (registered without the joint refinement, a box's views stay 1-4 mm
-    /// apart). Every second pixel of the depth views (5 x 5 windows on that grid), 5 mm view voxels, a 4 mm model,
-    /// the default's two coarse sequential ICP levels (15 mm, 6 mm), no joint refinement, and MLS
-    /// onto planes (on the 4 mm model, quadrics fit the noise: 0.06 mm worse on 8 scans) within
-    /// 10 mm: a median 32 model points, where the default's 6 mm holds 11 and leaves 14 % of the
-    /// points (fewer than 8) as they are (1.35 mm instead of 1.98 on box seed 1; BENCHMARKS.md 46, 65).
+    /// apart). Every second pixel of the depth views (5 x 5 windows on that grid), 5 mm view
+    /// voxels, a 4 mm model, the default's two coarse sequential ICP levels (15 mm, 6 mm), no joint
+    /// refinement, and MLS onto planes (on the 4 mm model, quadrics fit the noise) within 10 mm.
+    /// The default's 6 mm ball holds a median 11 points of the 4 mm model and leaves 14 % of them
+    /// (fewer than 8 neighbours) as they are; 10 mm holds 32: 1.35 mm instead of 1.98 on box
+    /// seed 1 (BENCHMARKS.md 46, 65).
     #[must_use]
     pub fn fast() -> Self {
         let default = Self::default();
