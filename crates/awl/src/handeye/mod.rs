@@ -46,6 +46,7 @@
 //! Tsai-Lenz divides by `cos(angle/2)` of `X`'s rotation: it loses accuracy as that angle nears 180
 //! degrees (Park-Martin and Daniilidis do not).
 
+pub mod chain;
 mod daniilidis;
 mod diversity;
 mod motion;

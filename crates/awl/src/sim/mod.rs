@@ -10,7 +10,7 @@
 pub mod calibration;
 mod layout;
 mod noise;
-mod random;
+pub(crate) mod random;
 mod record;
 mod render;
 mod rig;
