@@ -19,7 +19,7 @@ use awl::io::scan::{Scan, ViewData, read_scan};
 use awl::io::truth::{Truth, read_truth};
 use awl::io::workpiece::{read_workpiece, write_workpiece};
 use awl::mesh::TriMesh;
-use awl::pierce::{LocateParams, PierceParams, plan};
+use awl::pierce::{HandEyePrior, LocateParams, PierceParams, plan};
 use awl::pipeline::{FuseConfig, FuseOutput, fuse};
 use awl::sim::SceneKind;
 use awl::trial::pick_target;
@@ -239,11 +239,26 @@ fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String,
             pick_target(if face_centres { SceneKind::Box } else { SceneKind::Shell }, t, &f.outcome.object_from_model)
         })
         .collect();
-    let params = PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() };
     let mut errors: Vec<(String, [f64; 4])> = shot_truth.targets.iter().map(|t| (t.name.clone(), [0.0; 4])).collect();
     for (k, hand_eye) in [shot.ee_from_camera, shot_truth.ee_from_camera].into_iter().enumerate() {
         let mut s = shot.clone();
         s.ee_from_camera = hand_eye;
+        let prior = HandEyePrior::of_workpiece(wp.hand_eye.as_ref(), &s).expect("prior");
+        if let (0, Some(he), Some(truth)) = (k, &prior, shot_truth.ee_from_camera) {
+            let (before, after) = (
+                awl::transform::pose_difference(&hand_eye.expect("recorded"), &truth),
+                awl::transform::pose_difference(&he.prior.ee_from_camera, &truth),
+            );
+            println!(
+                "{shot_folder}: hand-eye recorded {:.2} mm {:.3} deg, refined from the scan {:.2} mm {:.3} deg",
+                before.0 * 1e3,
+                before.1.to_degrees(),
+                after.0 * 1e3,
+                after.1.to_degrees()
+            );
+        }
+        let params =
+            PierceParams { locate: LocateParams::with_refinement(), hand_eye: prior, ..PierceParams::default() };
         let surface = SurfaceModel::new(&f.out.model).expect("index").with_floor(wp.floor);
         let planned = plan(&surface, &wp.tag, &world_from_tag, &s, &specs, &params).expect("plan");
         let r = planned.located.refinement.as_ref().expect("refinement");
@@ -252,6 +267,14 @@ fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String,
             let tag_only =
                 (planned.located.base_from_model_tag * p.surface.point - t.p_world.expect("p_world")).norm() * 1e3;
             let a = p.axis_base.angle(&-t.n_world.expect("n_world")).to_degrees();
+            if let (Some(h), Some(truth)) = (&planned.located.hand_eye, shot_truth.ee_from_camera) {
+                let (dt, dr) = awl::transform::pose_difference(&h.ee_from_camera, &truth);
+                println!(
+                    "  hand-eye used {dt:.4} m {:.3} deg from the truth (prior: {})",
+                    dr.to_degrees(),
+                    h.prior_source
+                );
+            }
             println!(
                 "{shot_folder} `{}` with the {} hand-eye: {d:.2} mm (tag pose alone {tag_only:.2} mm), axis {a:.2} deg; \
                  shot depth {} points, fitness {:.2}, moved the tag {:.2} mm / {:.3} deg",
