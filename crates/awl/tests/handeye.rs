@@ -1,6 +1,8 @@
 //! Hand-eye calibration against the simulator's truth and against OpenCV (`tests/py/check_handeye.py`,
 //! run with `AWL_PYTHON`): accuracy per method under noise, exact recovery, outlier rejection,
-//! degenerate motion, and the typed errors of bad input.
+//! degenerate motion, the typed errors of bad input, and the calibration traps: inverted pose
+//! conventions, a tag scale or a translation the motions do not determine, the RMS over all poses,
+//! the sigmas against the actual errors, and no diagnosis on normal captures.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -409,6 +411,13 @@ fn pure_rotations_about_the_target_leave_the_tag_scale_undetermined() {
         };
         for (motion, name) in [(CalibrationMotion::OrbitTarget, "orbit"), (CalibrationMotion::Spread, "spread")] {
             let cap = sim(motion);
+            if motion == CalibrationMotion::OrbitTarget {
+                // every true view 0.45 m from the tag, its centre on the optical axis
+                for p in &cap.true_poses {
+                    let t = p.camera_from_target.translation.vector;
+                    assert!((t.norm() - 0.45).abs() < 1e-9 && t.x.hypot(t.y) < 1e-9, "{t:?}");
+                }
+            }
             // a tag 3 % larger than its declared size: every T_camera_target translation 3 % too long
             let mut poses = cap.poses.clone();
             for p in &mut poses {
