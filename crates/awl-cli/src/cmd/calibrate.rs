@@ -68,6 +68,85 @@ pub struct HandEyeArgs {
     /// Simulated poses: also write the true T_ee_camera and T_base_target here.
     #[arg(long, requires = "write_simulated")]
     pub truth: Option<PathBuf>,
+    /// Rejection thresholds and diagnosis limits.
+    #[command(flatten)]
+    pub tuning: HandEyeTuning,
+}
+
+/// The settings of `awl::handeye::HandEyeParams` on the command line (defaults: the library's).
+#[derive(clap::Args)]
+pub struct HandEyeTuning {
+    /// A pose is an outlier above this many times the median residual (and the floors).
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_factor)]
+    pub outlier_factor: f64,
+    /// Translation residuals below this never make an outlier, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_floor_mm)]
+    pub outlier_floor_mm: f64,
+    /// Rotation residuals below this never make an outlier, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_floor_deg)]
+    pub outlier_floor_deg: f64,
+    /// At most this fraction of the poses is rejected (0 to 1).
+    #[arg(long, default_value_t = HandEyeParams::default().max_rejected_fraction)]
+    pub max_rejected_fraction: f64,
+    /// Pairs rotating less than this do not count toward the motion diversity, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().min_pair_angle_deg)]
+    pub min_pair_angle_deg: f64,
+    /// Warn when the pairs' rotation axes span less than this, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().min_axis_angle_deg)]
+    pub min_axis_angle_deg: f64,
+    /// Refuse when the pairs' rotation axes span less than this, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().degenerate_axis_angle_deg)]
+    pub degenerate_axis_angle_deg: f64,
+    /// Weight of rotation residuals in the refinement, metres per radian.
+    #[arg(long, default_value_t = HandEyeParams::default().rotation_weight_m)]
+    pub rotation_weight_m: f64,
+    /// Refinement iteration cap.
+    #[arg(long, default_value_t = HandEyeParams::default().max_iterations)]
+    pub max_iterations: usize,
+    /// Warn when T_ee_camera's translation 1-sigma along some direction exceeds this, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().max_translation_sigma_mm)]
+    pub max_translation_sigma_mm: f64,
+    /// Warn when the 1-sigma of the target scale (tag size) exceeds this, percent.
+    #[arg(long, default_value_t = HandEyeParams::default().max_scale_sigma_percent)]
+    pub max_scale_sigma_percent: f64,
+    /// The residual noise the 1-sigmas assume at least, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().min_noise_mm)]
+    pub min_noise_mm: f64,
+    /// Refuse when the poses fit this many times better with T_base_ee or T_camera_target inverted.
+    #[arg(long, default_value_t = HandEyeParams::default().inverted_fit_factor)]
+    pub inverted_fit_factor: f64,
+    /// Accept poses that look inverted (a warning instead of the refusal).
+    #[arg(long)]
+    pub allow_inverted_fit: bool,
+}
+
+impl HandEyeTuning {
+    /// The library's parameters with these settings; an error naming the flag out of range.
+    fn params(&self, method: HandEyeMethod, refine: bool) -> anyhow::Result<HandEyeParams> {
+        let params = HandEyeParams {
+            method,
+            refine,
+            rotation_weight_m: self.rotation_weight_m,
+            max_iterations: self.max_iterations,
+            outlier_factor: self.outlier_factor,
+            outlier_floor_mm: self.outlier_floor_mm,
+            outlier_floor_deg: self.outlier_floor_deg,
+            max_rejected_fraction: self.max_rejected_fraction,
+            min_pair_angle_deg: self.min_pair_angle_deg,
+            min_axis_angle_deg: self.min_axis_angle_deg,
+            degenerate_axis_angle_deg: self.degenerate_axis_angle_deg,
+            max_translation_sigma_mm: self.max_translation_sigma_mm,
+            max_scale_sigma_percent: self.max_scale_sigma_percent,
+            min_noise_mm: self.min_noise_mm,
+            inverted_fit_factor: self.inverted_fit_factor,
+            allow_inverted_fit: self.allow_inverted_fit,
+        };
+        match params.validate() {
+            Ok(()) => Ok(params),
+            Err(awl::Error::Invalid { what, message }) => anyhow::bail!("--{}: {message}", what.replace('_', "-")),
+            Err(e) => Err(e.into()),
+        }
+    }
 }
 
 /// Runs `awl calibrate`.
@@ -108,6 +187,10 @@ fn result_json(result: &HandEyeResult, params: &HandEyeParams) -> serde_json::Va
         "rejected": result.rejected,
         "rms_translation_mm": result.rms_translation_mm,
         "rms_rotation_deg": result.rms_rotation_deg,
+        "rms_all_translation_mm": result.rms_all_translation_mm,
+        "rms_all_rotation_deg": result.rms_all_rotation_deg,
+        "uncertainty": result.uncertainty,
+        "inversion_fits": result.inversion_fits,
         "residuals": result.residuals,
         "diversity": result.diversity,
         "refinement": result.refinement,
@@ -123,14 +206,14 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     let (Some(poses_path), Some(output)) = (&args.poses, &args.output) else {
         anyhow::bail!("--poses and --output are required");
     };
-    refuse_overwriting_inputs(output, &[poses_path])?;
-    let poses = read_poses(poses_path)?;
     let method = match args.method {
         MethodArg::Park => HandEyeMethod::Park,
         MethodArg::Tsai => HandEyeMethod::Tsai,
         MethodArg::Daniilidis => HandEyeMethod::Daniilidis,
     };
-    let params = HandEyeParams { method, refine: !args.no_refine, ..HandEyeParams::default() };
+    let params = args.tuning.params(method, !args.no_refine)?;
+    refuse_overwriting_inputs(output, &[poses_path])?;
+    let poses = read_poses(poses_path)?;
     let result =
         calibrate(&poses, &params).with_context(|| format!("{}: hand-eye calibration failed", poses_path.display()))?;
     let value = result_json(&result, &params);
@@ -140,9 +223,10 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let t = result.ee_from_camera.translation.vector * 1e3;
+    let u = &result.uncertainty;
     println!(
         "hand-eye ({}): T_ee_camera t = [{:.2}, {:.2}, {:.2}] mm, rotation {:.3} deg; {} of {} poses used, \
-         residual RMS {:.3} mm / {:.4} deg; rejected {:?}; wrote {}",
+         residual RMS {:.3} mm / {:.4} deg (inliers), {:.3} mm / {:.4} deg (all poses); rejected {:?}; wrote {}",
         method.name(),
         t.x,
         t.y,
@@ -152,8 +236,16 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
         poses.len(),
         result.rms_translation_mm,
         result.rms_rotation_deg,
+        result.rms_all_translation_mm,
+        result.rms_all_rotation_deg,
         result.rejected,
         output.display()
+    );
+    let (s, r) = (u.translation_sigma_mm, u.rotation_sigma_deg);
+    println!(
+        "1-sigma: translation [{:.2}, {:.2}, {:.2}] mm (flange axes), rotation [{:.3}, {:.3}, {:.3}] deg (camera \
+         axes), target scale {:.2} %",
+        s[0], s[1], s[2], r[0], r[1], r[2], u.scale_sigma_percent
     );
     for w in &result.warnings {
         eprintln!("warning: {w}");

@@ -10,6 +10,10 @@
 //! about a random axis. Noise (independent normal per axis): `camera_from_target * dT` with `dT` in
 //! the target frame (so `camera_noise_mm` is the tag position error and `camera_noise_deg` the
 //! orientation error about its centre); `base_from_ee * dT` with `dT` in the flange frame.
+//!
+//! [`CalibrationMotion::OrbitTarget`] draws the same directions and rolls but keeps every camera at
+//! the middle distance, aimed at the tag centre: pure rotations about the target, the capture that
+//! cannot tell a wrong tag size from the camera's offset along its optical axis.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand_chacha::ChaCha8Rng;
@@ -21,6 +25,18 @@ use crate::sim::simulated_camera;
 
 /// Side of the simulated calibration tag, metres.
 pub const CALIBRATION_TAG_SIZE_M: f64 = 0.08;
+
+/// How the simulated arm moves between the poses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CalibrationMotion {
+    /// Distances spread over `min_distance_m..max_distance_m`, aims within 2 cm of the tag centre
+    /// (module docs). The default.
+    #[default]
+    Spread,
+    /// Every camera at `(min_distance_m + max_distance_m) / 2` from the tag, aimed at its centre:
+    /// pure rotations about the target.
+    OrbitTarget,
+}
 
 /// What to simulate; defaults in [`Default`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,6 +63,8 @@ pub struct CalibrationSimParams {
     /// The true `T_ee_camera`; `None` (default): drawn per seed (module docs). Give
     /// [`crate::sim::rig_ee_from_camera`] to calibrate the camera of the simulated scans and shots.
     pub ee_from_camera: Option<Isometry3<f64>>,
+    /// How the arm moves between the poses. Default [`CalibrationMotion::Spread`].
+    pub motion: CalibrationMotion,
 }
 
 impl Default for CalibrationSimParams {
@@ -62,6 +80,7 @@ impl Default for CalibrationSimParams {
             min_distance_m: 0.3,
             max_distance_m: 0.6,
             ee_from_camera: None,
+            motion: CalibrationMotion::Spread,
         }
     }
 }
@@ -134,8 +153,14 @@ fn camera_pose(rng: &mut ChaCha8Rng, p: &CalibrationSimParams, base_from_target:
     let tilt = spread * uniform(rng, 0.0, 1.0).sqrt();
     let azimuth = uniform(rng, 0.0, std::f64::consts::TAU);
     let dir = n * tilt.cos() + (u * azimuth.cos() + v * azimuth.sin()) * tilt.sin();
-    let eye = base_from_target.translation.vector + dir * uniform(rng, p.min_distance_m, p.max_distance_m);
-    let aim = base_from_target.translation.vector + u * uniform(rng, -0.02, 0.02) + v * uniform(rng, -0.02, 0.02);
+    let mut distance = uniform(rng, p.min_distance_m, p.max_distance_m);
+    let mut offset = u * uniform(rng, -0.02, 0.02) + v * uniform(rng, -0.02, 0.02);
+    if p.motion == CalibrationMotion::OrbitTarget {
+        distance = 0.5 * (p.min_distance_m + p.max_distance_m);
+        offset = Vector3::zeros();
+    }
+    let eye = base_from_target.translation.vector + dir * distance;
+    let aim = base_from_target.translation.vector + offset;
     let z = (aim - eye).normalize();
     // image x along the tag's x (image y down = tag y up), then rolled
     let roll = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), uniform(rng, -spread, spread));
