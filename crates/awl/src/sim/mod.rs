@@ -189,7 +189,7 @@ pub struct SimView {
     pub labels: LabelImage,
 }
 
-/// A simulated scan (or shot) in memory.
+/// A simulated scan (or shot, or calibration capture) in memory.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Simulation {
     /// The manifest, with the recorded (noisy) poses; `dir` is empty and paths are relative.
