@@ -14,7 +14,7 @@ use crate::camera::{DepthCamera, Intrinsics, PixelRect, depth_points_in, depth_t
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
-use crate::io::image::{read_color_png_every_nth, read_depth_png_every_nth};
+use crate::io::image::{read_color_image_every_nth, read_depth_png_every_nth};
 use crate::io::{read_bytes, write_atomic};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
 
@@ -36,7 +36,7 @@ pub struct TagSpec {
 /// Where a view's measurements are, relative to the scan folder.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ViewData {
-    /// A 16-bit depth PNG and an optional registered 8-bit color PNG.
+    /// A 16-bit depth PNG and an optional registered 8-bit color image (PNG or JPEG).
     Depth {
         /// Depth image path.
         depth: PathBuf,
@@ -434,10 +434,10 @@ pub(crate) fn read_color(scan: &Scan, camera: &DepthCamera, color: &Path) -> Res
     read_color_every_nth(scan, camera, color, 1)
 }
 
-/// [`read_color`] keeping every `step`-th row and column ([`read_color_png_every_nth`]).
+/// [`read_color`] keeping every `step`-th row and column ([`read_color_image_every_nth`]: PNG or JPEG).
 fn read_color_every_nth(scan: &Scan, camera: &DepthCamera, color: &Path, step: usize) -> Result<ColorImage> {
     let color_path = scan.dir.join(color);
-    let (image, (width, height)) = read_color_png_every_nth(&color_path, step)?;
+    let (image, (width, height)) = read_color_image_every_nth(&color_path, step)?;
     check_size(&color_path, camera, width, height)?;
     Ok(image)
 }
