@@ -46,6 +46,7 @@
 //! Tsai-Lenz divides by `cos(angle/2)` of `X`'s rotation: it loses accuracy as that angle nears 180
 //! degrees (Park-Martin and Daniilidis do not).
 
+pub mod capture;
 mod daniilidis;
 mod diversity;
 mod motion;
@@ -58,6 +59,7 @@ mod tsai;
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
+pub use capture::{CaptureCalibration, CaptureParams, CaptureViewReport, FlipChoice, calibrate_capture};
 pub use diversity::MotionDiversity;
 pub use refine::RefineStats;
 pub use residual::PoseResidual;
