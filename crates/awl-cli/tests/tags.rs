@@ -32,9 +32,12 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
+/// A photo: file, `[fx, fy, cx, cy]`, `[width, height]`, the ids in it.
+type Photo = (&'static str, [f64; 4], [u32; 2], Vec<u32>);
+
 /// (file, fx, fy, cx, cy, width, height, ids): `shared/data/dt_apriltags/test_info.yaml` and the ids
 /// `crates/awl/tests/tags.rs` asserts for each photo.
-fn photos() -> Vec<(&'static str, [f64; 4], [u32; 2], Vec<u32>)> {
+fn photos() -> Vec<Photo> {
     let sample = [336.7755634193813, 336.02729840829176, 333.3575643300718, 212.77376312080065];
     let multiple = [338.563277422543, 338.939280638548, 336.45495347495824, 230.486982216255];
     let rotation = [329.8729619143081, 332.94611303946357, 528.0, 396.0];
