@@ -128,9 +128,10 @@ fn calib_seed1_calibrates_near_the_truth_and_the_error_is_the_arms() {
     let (ct, cr) = mm_deg(&cv, &cal.result.closed_form_ee_from_camera);
     let (ot, or) = mm_deg(&cv, &true_x);
     println!(
-        "OpenCV (Park) on the same detections: {ct:.4} mm {cr:.5} deg from our closed form; {ot:.3} mm {or:.4} deg from the truth"
+        "OpenCV (Park) on the same detections: {ct:.2e} mm {cr:.2e} deg from our closed form; {ot:.3} mm {or:.4} deg from the truth"
     );
-    // same equations over the same pairs: measured below 1e-6 mm on the simulated poses files
+    // same equations over the same pairs: measured 3.0e-8 mm / 1.4e-14 deg (OpenCV 4.13); its closed form is
+    // 3.080 mm / 0.028 deg from the truth, our refined result 2.235 mm / 0.128 deg
     assert!(ct < 1e-3 && cr < 1e-4, "OpenCV vs our closed form: {ct} mm {cr} deg");
 }
 

@@ -5,9 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use awl::camera::Intrinsics;
-use awl::io::capture::read_intrinsics;
+use awl::io::capture::read_camera_file;
 use awl::io::image::read_color_image;
-use awl::io::scan::read_scan;
 use awl::tag::{AprilTagDetector, DetectorParams, PosedTag, TagPoseSolution, detect_and_pose};
 use awl::transform::rows_from_isometry;
 use awl::workpiece::tag_pose::SUPPORTED_FAMILY;
@@ -97,12 +96,11 @@ fn camera(args: &TagsArgs) -> anyhow::Result<(Option<Intrinsics>, Option<f64>)> 
         anyhow::ensure!(size.is_finite() && size > 0.0, "--size must be a positive length in metres, got {size}");
     }
     if let Some(scan) = &args.scan {
-        let scan = read_scan(scan)?;
-        let k = scan.depth_camera()?.intrinsics;
-        return Ok((Some(k), args.size.or(scan.tag.map(|t| t.size_m))));
+        let (k, tag) = read_camera_file(scan)?;
+        return Ok((Some(k), args.size.or(tag.map(|t| t.size_m))));
     }
     if let Some(path) = &args.intrinsics {
-        return Ok((Some(read_intrinsics(path)?), args.size));
+        return Ok((Some(read_camera_file(path)?.0), args.size));
     }
     anyhow::ensure!(args.size.is_none(), "--size needs the camera: give --scan scan.json or --intrinsics K.json");
     Ok((None, None))

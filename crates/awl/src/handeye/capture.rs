@@ -225,11 +225,6 @@ fn search(
     Ok((reports, seen))
 }
 
-/// Rotation angle of a relative motion, radians.
-fn angle(q: &UnitQuaternion<f64>) -> f64 {
-    q.angle()
-}
-
 /// Step 3's first part: the open views choose by the rotation-angle invariant of `A X = X B`.
 fn choose_by_angles(capture: &Capture, seen: &mut [Seen]) {
     let flange: Vec<UnitQuaternion<f64>> = seen.iter().map(|s| capture.views[s.view].base_from_ee.rotation).collect();
@@ -244,8 +239,8 @@ fn choose_by_angles(capture: &Capture, seen: &mut [Seen]) {
                 (0..seen.len())
                     .filter(|&j| j != i)
                     .map(|j| {
-                        let a = angle(&(flange[i].inverse() * flange[j]));
-                        let b = angle(&(c_i * seen[j].chosen().rotation.inverse()));
+                        let a = (flange[i].inverse() * flange[j]).angle();
+                        let b = (c_i * seen[j].chosen().rotation.inverse()).angle();
                         (a - b).abs()
                     })
                     .sum()

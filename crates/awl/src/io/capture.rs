@@ -231,19 +231,48 @@ pub fn read_capture(dir_or_manifest: &Path) -> Result<Capture> {
 
 /// Reads a camera intrinsics file (`K.json`): `{"width", "height", "fx", "fy", "cx", "cy",
 /// "distortion"?}` (pixels; `distortion` Brown-Conrady `[k1, k2, p1, p2, k3]`, zeros when absent).
-/// A scan's `scan.json` is read for its `camera` block instead.
+/// Given a scan's `scan.json` (it has `format`), its `camera` block is read instead.
+///
+/// # Errors
+/// As [`read_camera_file`].
+pub fn read_intrinsics(path: &Path) -> Result<Intrinsics> {
+    Ok(read_camera_file(path)?.0)
+}
+
+/// The intrinsics of a `K.json` (see [`read_intrinsics`]) or of a scan folder's / capture's
+/// `scan.json` (a folder is read as its `scan.json`), and the scan's `tag` when it names one. Only
+/// the camera and the tag are read: a capture whose views have no depth is read as well as a scan.
 ///
 /// # Errors
 /// [`Error::Io`] when unreadable; [`Error::Format`] for invalid JSON or a missing key;
-/// [`Error::Field`] naming the invalid field.
-pub fn read_intrinsics(path: &Path) -> Result<Intrinsics> {
+/// [`Error::Field`] naming the invalid field (`camera.fx`, `tag.size`, ...).
+pub fn read_camera_file(path: &Path) -> Result<(Intrinsics, Option<TagSpec>)> {
+    let path = if path.is_dir() { path.join("scan.json") } else { path.to_path_buf() };
+    let path = path.as_path();
     let bytes = read_bytes(path)?;
     let value: serde_json::Value = parse_json(path, &bytes)?;
-    let (block, prefix) = match value.get("camera") {
-        Some(camera) if value.get("format").is_some() => (camera.clone(), "camera."),
-        _ => (value, ""),
+    let is_scan = value.get("format").is_some();
+    let (block, prefix) = if is_scan {
+        let camera = value.get("camera").ok_or_else(|| Error::field(path, "camera", "missing"))?;
+        (camera.clone(), "camera.")
+    } else {
+        (value.clone(), "")
     };
-    let raw: RawIntrinsics = serde_json::from_value(block)
-        .map_err(|e| Error::format(path, format!("not a camera intrinsics file ({{\"width\", \"height\", \"fx\", \"fy\", \"cx\", \"cy\", \"distortion\"?}}): {e}")))?;
-    intrinsics_from_parts(path, prefix, &raw)
+    let raw: RawIntrinsics = serde_json::from_value(block).map_err(|e| {
+        Error::format(
+            path,
+            format!("not camera intrinsics ({{\"width\", \"height\", \"fx\", \"fy\", \"cx\", \"cy\", \"distortion\"?}}): {e}"),
+        )
+    })?;
+    let intrinsics = intrinsics_from_parts(path, prefix, &raw)?;
+    let tag = match value.get("tag").filter(|_| is_scan) {
+        Some(t) => {
+            let tag: TagSpec = serde_json::from_value(t.clone())
+                .map_err(|e| Error::field(path, "tag", format!("expected {{\"family\", \"id\", \"size\"}}: {e}")))?;
+            positive(path, "tag.size", tag.size_m)?;
+            Some(tag)
+        }
+        None => None,
+    };
+    Ok((intrinsics, tag))
 }
