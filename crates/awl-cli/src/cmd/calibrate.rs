@@ -1,10 +1,14 @@
 //! `awl calibrate hand-eye`: the eye-in-hand camera's `T_ee_camera` from robot poses and target
-//! observations (`awl-handeye/1` poses file, documented in `awl::handeye`), or a simulated poses file.
+//! observations (`awl-handeye/1` poses file, documented in `awl::handeye`), from a capture folder of
+//! tag images (`--capture`, `awl::handeye::capture`), or a simulated poses file.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use awl::handeye::{HandEyeMethod, HandEyeParams, HandEyeResult, calibrate};
+use awl::handeye::{
+    CaptureCalibration, CaptureParams, HandEyeMethod, HandEyeParams, HandEyeResult, calibrate, calibrate_capture,
+};
+use awl::io::capture::read_capture;
 use awl::io::handeye::{read_poses, write_poses};
 use awl::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use awl::transform::rows_from_isometry;
@@ -42,8 +46,12 @@ pub enum MethodArg {
 #[derive(clap::Args)]
 pub struct HandEyeArgs {
     /// Poses file: {"format":"awl-handeye/1","poses":[{"T_base_ee":4x4,"T_camera_target":4x4},...]}.
-    #[arg(long, required_unless_present = "write_simulated")]
+    #[arg(long, required_unless_present_any = ["write_simulated", "capture"], conflicts_with = "capture")]
     pub poses: Option<PathBuf>,
+    /// Capture folder (awl-scan/1): color images (PNG or JPEG; depth optional) of the tag named in its
+    /// scan.json, held fixed in the scene, each view with its T_base_ee. The tag is detected and posed per view.
+    #[arg(long)]
+    pub capture: Option<PathBuf>,
     /// Closed-form solver that starts the refinement.
     #[arg(long, value_enum, default_value = "park")]
     pub method: MethodArg,
@@ -57,7 +65,7 @@ pub struct HandEyeArgs {
     #[arg(long)]
     pub json: bool,
     /// Instead of calibrating, write a simulated poses file (noise 0.5 mm / 0.1 deg on the target, 0.1 mm / 0.02 deg on the arm).
-    #[arg(long, conflicts_with_all = ["poses", "output"])]
+    #[arg(long, conflicts_with_all = ["poses", "output", "capture"])]
     pub write_simulated: Option<PathBuf>,
     /// Simulated poses: how many.
     #[arg(long, default_value_t = 15, requires = "write_simulated")]
@@ -203,15 +211,14 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.write_simulated {
         return write_simulated(args, path);
     }
+    if let Some(dir) = &args.capture {
+        return hand_eye_capture(args, dir);
+    }
     let (Some(poses_path), Some(output)) = (&args.poses, &args.output) else {
         anyhow::bail!("--poses and --output are required");
     };
-    let method = match args.method {
-        MethodArg::Park => HandEyeMethod::Park,
-        MethodArg::Tsai => HandEyeMethod::Tsai,
-        MethodArg::Daniilidis => HandEyeMethod::Daniilidis,
-    };
-    let params = args.tuning.params(method, !args.no_refine)?;
+    let params = handeye_params(args)?;
+    let method = params.method;
     refuse_overwriting_inputs(output, &[poses_path])?;
     let poses = read_poses(poses_path)?;
     let result =
@@ -249,6 +256,107 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     );
     for w in &result.warnings {
         eprintln!("warning: {w}");
+    }
+    Ok(())
+}
+
+/// The solver's settings from the arguments.
+/// The solver settings of the command line (method, refinement, the thresholds), checked.
+fn handeye_params(args: &HandEyeArgs) -> anyhow::Result<HandEyeParams> {
+    let method = match args.method {
+        MethodArg::Park => HandEyeMethod::Park,
+        MethodArg::Tsai => HandEyeMethod::Tsai,
+        MethodArg::Daniilidis => HandEyeMethod::Daniilidis,
+    };
+    args.tuning.params(method, !args.no_refine)
+}
+
+/// The per-view part of the `--capture` output.
+fn capture_json(dir: &Path, capture: &CaptureCalibration, params: &CaptureParams) -> serde_json::Value {
+    let views: Vec<serde_json::Value> = capture
+        .views
+        .iter()
+        .map(|v| {
+            let mut value = serde_json::to_value(v).unwrap_or_default();
+            value["T_camera_tag"] = json!(v.camera_from_tag.as_ref().map(rows_from_isometry));
+            value["inlier"] = json!(v.residual.map(|r| r.inlier));
+            value
+        })
+        .collect();
+    json!({
+        "dir": dir,
+        "views": views,
+        "views_found": capture.poses.len(),
+        "thorough_search": capture.thorough_search,
+        "detector": params.detector,
+        "max_rmse_px": params.max_rmse_px,
+        "min_side_px": params.min_side_px,
+    })
+}
+
+fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
+    let Some(output) = &args.output else { anyhow::bail!("--output is required") };
+    let capture = read_capture(dir)?;
+    let mut inputs = vec![capture.manifest_path()];
+    for v in &capture.views {
+        inputs.push(capture.dir.join(&v.color));
+        inputs.extend(v.depth.as_ref().map(|d| capture.dir.join(d)));
+    }
+    refuse_overwriting_inputs(output, &inputs.iter().map(PathBuf::as_path).collect::<Vec<_>>())?;
+    let params = CaptureParams { handeye: handeye_params(args)?, ..CaptureParams::default() };
+    let calibration = calibrate_capture(&capture, &params)
+        .with_context(|| format!("{}: hand-eye calibration from the capture failed", dir.display()))?;
+    let result = &calibration.result;
+    let mut value = result_json(result, &params.handeye);
+    value["capture"] = capture_json(dir, &calibration, &params);
+    write_json(output, &value)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&value)?);
+        return Ok(());
+    }
+    for v in &calibration.views {
+        match (&v.why_not, v.residual) {
+            (Some(why), _) => println!("view {:3}: tag not used: {why}", v.index),
+            (None, Some(r)) => println!(
+                "view {:3}: solution {} ({}), {:.3} px; residual {:.3} mm / {:.4} deg{}",
+                v.index,
+                v.solution.unwrap_or(1),
+                v.chosen_by.map_or("", |c| match c {
+                    awl::handeye::FlipChoice::Unambiguous => "unambiguous",
+                    awl::handeye::FlipChoice::Depth => "by depth",
+                    awl::handeye::FlipChoice::Consistency => "by consistency",
+                }),
+                v.rmse_px.unwrap_or(f64::NAN),
+                r.translation_mm,
+                r.rotation_deg,
+                if r.inlier { "" } else { "  REJECTED" }
+            ),
+            (None, None) => println!("view {:3}: found", v.index),
+        }
+    }
+    let t = result.ee_from_camera.translation.vector * 1e3;
+    println!(
+        "hand-eye ({}) from {} of {} views: T_ee_camera t = [{:.2}, {:.2}, {:.2}] mm, rotation {:.3} deg; {} poses \
+         used, residual RMS {:.3} mm / {:.4} deg; rejected views {:?}; wrote {}",
+        params.handeye.method.name(),
+        calibration.poses.len(),
+        capture.views.len(),
+        t.x,
+        t.y,
+        t.z,
+        result.ee_from_camera.rotation.angle().to_degrees(),
+        calibration.poses.len() - result.rejected.len(),
+        result.rms_translation_mm,
+        result.rms_rotation_deg,
+        result
+            .rejected
+            .iter()
+            .filter_map(|&k| calibration.views.iter().find(|v| v.pose == Some(k)).map(|v| v.index))
+            .collect::<Vec<_>>(),
+        output.display()
+    );
+    for w in &result.warnings {
+        eprintln!("warning: {w} (poses are the views found, in order)");
     }
     Ok(())
 }

@@ -66,6 +66,7 @@
 //! Tsai-Lenz divides by `cos(angle/2)` of `X`'s rotation: it loses accuracy as that angle nears 180
 //! degrees (Park-Martin and Daniilidis do not).
 
+pub mod capture;
 pub mod chain;
 mod daniilidis;
 mod diagnosis;
@@ -81,6 +82,7 @@ mod uncertainty;
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
+pub use capture::{CaptureCalibration, CaptureParams, CaptureViewReport, FlipChoice, calibrate_capture};
 pub use diagnosis::{Diagnosis, HandEyeWarning, Inversion, InversionFit};
 pub use diversity::MotionDiversity;
 pub use refine::RefineStats;

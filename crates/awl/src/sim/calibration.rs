@@ -166,6 +166,8 @@ pub(crate) struct ViewSpread {
     pub min_distance_m: f64,
     /// Farthest camera-to-target distance, metres.
     pub max_distance_m: f64,
+    /// How the camera moves about the target.
+    pub motion: CalibrationMotion,
 }
 
 /// The fixed target: 0.55 m in front of the base, 5 cm above it, tilted 30 degrees toward it, turned
@@ -208,8 +210,12 @@ pub fn simulate_calibration(p: &CalibrationSimParams) -> Result<CalibrationCaptu
     let drawn = true_hand_eye(&mut geo);
     let ee_from_camera = p.ee_from_camera.unwrap_or(drawn);
     let base_from_target = fixed_target(&mut geo);
-    let spread =
-        ViewSpread { spread_deg: p.spread_deg, min_distance_m: p.min_distance_m, max_distance_m: p.max_distance_m };
+    let spread = ViewSpread {
+        spread_deg: p.spread_deg,
+        min_distance_m: p.min_distance_m,
+        max_distance_m: p.max_distance_m,
+        motion: p.motion,
+    };
     let mut true_poses = Vec::with_capacity(p.count);
     for i in 0..p.count {
         let base_from_camera = (0..1000)

@@ -24,7 +24,7 @@ use crate::error::{Error, Result};
 use crate::io::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::io::truth::{Truth, TruthView};
 use crate::mesh::TriMesh;
-use crate::sim::calibration::{ViewSpread, camera_pose, fixed_target, square_in_view};
+use crate::sim::calibration::{CalibrationMotion, ViewSpread, camera_pose, fixed_target, square_in_view};
 use crate::sim::layout::{FLOOR, FLOOR_HALF_M};
 use crate::sim::noise::DepthNoise;
 use crate::sim::random::{Stream, rng};
@@ -164,8 +164,12 @@ fn plan_views(
     world_from_tag: &Isometry3<f64>,
 ) -> Result<Vec<(Isometry3<f64>, TagObservation)>> {
     let mut geo = rng(p.seed, Stream::Capture, 1, 0);
-    let spread =
-        ViewSpread { spread_deg: p.spread_deg, min_distance_m: p.min_distance_m, max_distance_m: p.max_distance_m };
+    let spread = ViewSpread {
+        spread_deg: p.spread_deg,
+        min_distance_m: p.min_distance_m,
+        max_distance_m: p.max_distance_m,
+        motion: CalibrationMotion::Spread,
+    };
     let quiet_half = p.tag_size_m * TAG_MODULES as f64 / TAG_BORDER_MODULES as f64 / 2.0;
     (0..p.views)
         .map(|i| {
