@@ -299,21 +299,23 @@ fn box_pierce_from_the_tilted_shot() {
     // [recorded hand-eye mm, deg, true hand-eye mm, deg]; the recorded hand-eye is about 3 mm / 0.3 deg off
     let top = errors[0].1;
     assert!(top[2] <= 2.5 && top[3] <= 1.0, "top-centre with the true hand-eye: {top:?}");
-    assert!(top[0] <= 4.0 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
+    // the recorded hand-eye, refined from the scan and the shot's views: measured 1.71 mm (before the
+    // refinement: up to 4 mm)
+    assert!(top[0] <= 2.5 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
     let side = errors[1].1;
     assert_eq!(errors[1].0, "side-centre");
-    // measured 1.39 (true) / 1.73 mm (recorded hand-eye); 36-39 mm before the floor edge
+    // measured 2.16 (true) / 1.79 mm (recorded hand-eye, refined); 36-39 mm before the floor edge
     assert!(side[2] <= 2.5 && side[3] <= 1.0, "side-centre with the true hand-eye: {side:?}");
-    assert!(side[0] <= 4.0 && side[1] <= 1.0, "side-centre with the recorded hand-eye: {side:?}");
+    assert!(side[0] <= 2.5 && side[1] <= 1.0, "side-centre with the recorded hand-eye: {side:?}");
 }
 
 #[test]
 fn shell_pierce_from_the_tilted_shot() {
     let errors = pierce_shot(reference_shell(), "shell_seed1_shot_tilt30", false);
-    // the groove: measured 1.92 mm / 0.12 deg (true hand-eye), 2.55 mm / 0.49 deg (recorded; the
-    // 15 mm plane in the groove instead of the fold's patch: 1.01 / 1.35 deg)
+    // the groove: measured 1.45 mm / 0.08 deg (true hand-eye), 0.91 mm / 0.07 deg (recorded, refined
+    // from the scan and the shot's views; 2.55 mm / 0.49 deg before the refinement)
     for (name, e) in &errors {
         assert!(e[2] <= 3.0 && e[3] <= 1.0, "{name} with the true hand-eye: {e:?}");
-        assert!(e[0] <= 5.0 && e[1] <= 1.0, "{name} with the recorded hand-eye: {e:?}");
+        assert!(e[0] <= 2.0 && e[1] <= 1.0, "{name} with the recorded hand-eye: {e:?}");
     }
 }
