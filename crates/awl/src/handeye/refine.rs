@@ -54,17 +54,28 @@ pub(crate) fn apply(x: &Isometry3<f64>, y: &Isometry3<f64>, s: &Vector12) -> (Is
     (perturb(x, v(0), v(3)), perturb(y, v(6), v(9)))
 }
 
+/// Step of the central differences of the unknowns of `(x, y)`.
+pub(crate) const H: f64 = 1e-6;
+
+/// `(x, y^-1)` shifted by `+H` and `-H` along each of the 12 unknowns, for central differences.
+pub(crate) type Shifted = Vec<((Isometry3<f64>, Isometry3<f64>), (Isometry3<f64>, Isometry3<f64>))>;
+
+/// [`Shifted`] at `(x, y)`.
+pub(crate) fn shifted_unknowns(x: &Isometry3<f64>, y: &Isometry3<f64>) -> Shifted {
+    (0..12)
+        .map(|k| {
+            let mut e = Vector12::zeros();
+            e[k] = H;
+            let (xp, yp) = apply(x, y, &e);
+            let (xm, ym) = apply(x, y, &(-e));
+            ((xp, yp.inverse()), (xm, ym.inverse()))
+        })
+        .collect()
+}
+
 /// Normal equations `(J^T J, J^T r)` at `(x, y)`.
 fn normal_equations(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, w: f64) -> (Matrix12, Vector12) {
-    const H: f64 = 1e-6;
-    let mut shifted = Vec::with_capacity(12);
-    for k in 0..12 {
-        let mut e = Vector12::zeros();
-        e[k] = H;
-        let (xp, yp) = apply(x, y, &e);
-        let (xm, ym) = apply(x, y, &(-e));
-        shifted.push(((xp, yp.inverse()), (xm, ym.inverse())));
-    }
+    let shifted = shifted_unknowns(x, y);
     let y_inv = y.inverse();
     let (mut h, mut g) = (Matrix12::zeros(), Vector12::zeros());
     for p in poses {

@@ -14,7 +14,7 @@ use nalgebra::{DMatrix, Isometry3, SymmetricEigen, Translation3, Vector3};
 use serde::Serialize;
 
 use crate::handeye::HandEyePose;
-use crate::handeye::refine::{Vector12, apply, residual};
+use crate::handeye::refine::{H, residual, shifted_unknowns};
 
 /// The 1-sigma uncertainty of a hand-eye solution (module docs of `handeye::uncertainty`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -46,15 +46,7 @@ fn scaled(pose: &HandEyePose, s: f64) -> HandEyePose {
 
 /// `J^T J` of the 13-unknown problem (`X`, `Y`, scale) at `(x, y, s = 1)`, and the cost there.
 fn normal_matrix(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, w: f64) -> (DMatrix<f64>, f64) {
-    const H: f64 = 1e-6;
-    let mut shifted = Vec::with_capacity(12);
-    for k in 0..12 {
-        let mut e = Vector12::zeros();
-        e[k] = H;
-        let (xp, yp) = apply(x, y, &e);
-        let (xm, ym) = apply(x, y, &(-e));
-        shifted.push(((xp, yp.inverse()), (xm, ym.inverse())));
-    }
+    let shifted = shifted_unknowns(x, y);
     let y_inv = y.inverse();
     let mut jtj = DMatrix::<f64>::zeros(13, 13);
     let mut cost = 0.0;

@@ -267,3 +267,67 @@ pub fn refine_hand_eye(
     report.axis_angle_deg = axis_angle.to_degrees();
     Ok(Some(report))
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Translation3, UnitQuaternion};
+    use serde_json::{Map, json};
+
+    use super::*;
+    use crate::io::scan::{ViewData, ViewSpec};
+
+    /// A scan of `stops` stops of 2 views whose flange turns 30 deg about `axis(stop)` between
+    /// them, registered exactly (`T_world_camera` = the recorded chain with the true hand-eye).
+    fn scan(stops: usize, axis: impl Fn(usize) -> Vector3<f64>, tagged: bool) -> (Scan, Vec<Option<Isometry3<f64>>>) {
+        let truth = Isometry3::from_parts(Translation3::new(0.03, -0.02, 0.05), UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, 1.57)));
+        let recorded = truth * Isometry3::from_parts(Translation3::new(0.002, -0.001, 0.001), UnitQuaternion::from_scaled_axis(Vector3::new(0.003, -0.002, 0.004)));
+        let (mut views, mut poses) = (Vec::new(), Vec::new());
+        for s in 0..stops {
+            let a = s as f64;
+            let world_from_base = Isometry3::from_parts(Translation3::new(a.cos(), a.sin(), 0.45), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a));
+            for k in 0..2 {
+                let turn = UnitQuaternion::from_scaled_axis(axis(s).normalize() * (0.5 * k as f64));
+                let base_from_ee = Isometry3::from_parts(Translation3::new(0.5, 0.1 * k as f64, 0.4), turn);
+                let mut extra = Map::new();
+                if tagged {
+                    extra.insert("base_stop".into(), json!(s));
+                }
+                views.push(ViewSpec { data: ViewData::Points { points: "v.ply".into() }, pose: ViewPose::Chain { world_from_base, base_from_ee }, extra });
+                poses.push(Some(world_from_base * base_from_ee * truth));
+            }
+        }
+        (Scan { dir: ".".into(), camera: None, ee_from_camera: Some(recorded), tag: None, views }, poses)
+    }
+
+    #[test]
+    fn stops_give_the_hand_eye_or_say_why_not() {
+        let spread = |s: usize| [Vector3::x(), Vector3::y(), Vector3::new(1.0, 1.0, 1.0), Vector3::z()][s % 4];
+        let (s, poses) = scan(4, spread, true);
+        let r = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
+        assert!(r.refused.is_empty(), "{}", r.refused);
+        assert_eq!((r.stops_used.len(), r.views_used.len(), r.rotating_pairs), (4, 8, 4));
+        // exact motions: the 2.4 mm / 0.32 deg recorded error is corrected to well under the prior
+        assert!(r.correction_mm > 2.0 && r.correction_deg > 0.25, "{} mm {} deg", r.correction_mm, r.correction_deg);
+        // the same scan without base_stop keys: the identical T_world_base group the views
+        let (s, poses) = scan(4, spread, false);
+        let untagged = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
+        assert_eq!(untagged.stops_used, vec![0, 2, 4, 6]);
+        assert!((untagged.correction_mm - r.correction_mm).abs() < 1e-9);
+        // one stop: refused, named
+        let (s, poses) = scan(1, spread, true);
+        let one = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert!(one.refined.is_none() && one.refused.starts_with("fewer than two usable stops"), "{}", one.refused);
+        // every stop turning about the same axis: refused, named
+        let (s, poses) = scan(4, |_| Vector3::z(), true);
+        let parallel = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert!(parallel.refused.starts_with("parallel rotation axes"), "{}", parallel.refused);
+        assert!(parallel.axis_angle_deg < 1e-6);
+        // a view left out of the registration: its stop has one view, so it is not used
+        let (s, mut poses) = scan(3, spread, true);
+        poses[1] = None;
+        let partial = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert_eq!(partial.stops_used, vec![1, 2]);
+        let bad = HandEyeConfig { prior_sigma_m: 0.0, ..HandEyeConfig::default() };
+        assert!(refine_hand_eye(&s, &poses, &bad).expect_err("zero sigma").to_string().contains("prior_sigma_m"));
+    }
+}
