@@ -418,8 +418,13 @@ fn lines_through_a_singularity_are_reported() {
 #[test]
 fn the_spin_search_keeps_the_most_margin() {
     let a = arm("ur5e");
-    let ee_from_tool = Isometry3::translation(0.0, 0.0, 0.15);
-    let target = Point3::new(0.45, 0.2, 0.1);
+    // an angled tool (40 deg off the flange axis, 5 cm aside): the spin moves the whole wrist
+    let ee_from_tool = Isometry3::from_parts(
+        Translation3::new(0.0, 0.05, 0.12),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 40f64.to_radians()),
+    );
+    // near the edge of the reach, so that some spins cannot be reached at all
+    let target = Point3::new(0.75, 0.0, 0.1);
     let down = Vector3::new(0.0, 0.0, -1.0);
     let tool = tool_poses(&target, &down, &Stroke::default()).expect("tool poses");
     let line = LineParams::default();
@@ -435,21 +440,32 @@ fn the_spin_search_keeps_the_most_margin() {
         search.passed,
         search.failures.len()
     );
-    assert!(best.score > 0.2, "{}", best.score);
+    assert!(best.score > 1.5, "{}", best.score); // measured 1.92
     // the tool tip lands on the target at the pierce pose, 10 mm deep
     let tip = best.flange_poses[1] * ee_from_tool * Point3::origin();
     assert!((tip - (target + down * 0.01)).norm() < 1e-12);
-    // no other (spin, configuration) passing scores higher: checked by brute force
-    let mut brute = f64::NEG_INFINITY;
+    // no other (spin, configuration) passing scores higher: checked by brute force, spin by spin
+    let mut scores = Vec::new();
     for k in 0..12 {
         let s = 2.0 * PI * k as f64 / 12.0;
         let fixed = SpinParams { fixed_rad: Some(s), ..spin };
-        if let Some(b) = best_spin(&a, &tool, &ee_from_tool, &line, &fixed).expect("fixed").best {
+        let b = best_spin(&a, &tool, &ee_from_tool, &line, &fixed).expect("fixed").best;
+        if let Some(b) = &b {
             assert!((b.spin_rad - s).abs() < 1e-15);
-            brute = brute.max(b.score);
         }
+        scores.push(b.map_or(-1.0, |b| b.score));
     }
+    println!(
+        "best score per spin (-1: none passed): {:?}",
+        scores.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>()
+    );
+    let brute = scores.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let worst = scores.iter().copied().fold(f64::INFINITY, f64::min);
     assert!((brute - best.score).abs() < 1e-12, "brute force {brute} vs {}", best.score);
+    // the spin matters here: spins 60-120 deg have no passing configuration (measured: 3 of 12)
+    assert_eq!(worst, -1.0);
+    let unreachable = search.failures.iter().filter(|(_, branch, _)| branch.is_none()).count();
+    assert_eq!(unreachable, 3, "{:?}", search.failures);
     // out of reach: 2 m away
     let far = tool_poses(&Point3::new(2.0, 0.0, 0.1), &down, &Stroke::default()).expect("tool poses");
     let search = best_spin(&a, &far, &ee_from_tool, &line, &spin).expect("search");

@@ -73,8 +73,8 @@ impl Margins {
         self.shoulder_m = self.shoulder_m.min(m.shoulder_m);
     }
 
-    /// The worst of the four margins, each divided by its `scale` and capped at 1: 1 = every
-    /// margin at least its scale, 0 = at a limit or a singularity.
+    /// The worst of the four margins, each divided by its `scale` (which makes radians, sines and
+    /// metres comparable): 0 = at a limit or a singularity, 1 = the worst margin at its scale.
     pub fn score(&self, scale: &Margins) -> f64 {
         [
             self.limit_rad / scale.limit_rad,
@@ -83,8 +83,7 @@ impl Margins {
             self.shoulder_m / scale.shoulder_m,
         ]
         .into_iter()
-        .map(|v| v.min(1.0))
-        .fold(1.0, f64::min)
+        .fold(f64::INFINITY, f64::min)
     }
 }
 
@@ -326,8 +325,8 @@ pub struct SpinParams {
     pub count: usize,
     /// Try only this spin, radians (`--fixed-spin`).
     pub fixed_rad: Option<f64>,
-    /// The margin each of the four reaches for a full score ([`Margins::score`]). Default: limits
-    /// 0.5 rad, wrist and elbow 0.5, shoulder 0.1 m.
+    /// The scale of each margin in [`Margins::score`]. Default: limits 0.5 rad, wrist and elbow
+    /// 0.5, shoulder 0.1 m.
     pub scale: Margins,
 }
 
@@ -366,17 +365,20 @@ pub struct SpinSearch {
 }
 
 impl SpinSearch {
-    /// Why no candidate passed: each distinct failure once, with its count.
+    /// Why no candidate passed: each kind of failure once (its text up to the first number), with
+    /// how many candidates failed so and its first instance.
     pub fn reason(&self) -> String {
-        let mut kinds: Vec<(String, usize)> = Vec::new();
+        let mut kinds: Vec<(String, usize, String)> = Vec::new();
         for (_, _, why) in &self.failures {
-            let key = why.split_once("): ").map_or(why.as_str(), |(_, r)| r).to_string();
-            match kinds.iter_mut().find(|(k, _)| *k == key) {
-                Some((_, n)) => *n += 1,
-                None => kinds.push((key, 1)),
+            let text = why.split_once("): ").map_or(why.as_str(), |(_, r)| r);
+            let first = text.split("; ").next().unwrap_or(text).to_string();
+            let key: String = first.chars().take_while(|c| !c.is_ascii_digit()).collect();
+            match kinds.iter_mut().find(|(k, _, _)| *k == key) {
+                Some((_, n, _)) => *n += 1,
+                None => kinds.push((key, 1, first)),
             }
         }
-        kinds.iter().map(|(k, n)| format!("{n} x {k}")).collect::<Vec<_>>().join("; ")
+        kinds.iter().map(|(_, n, first)| format!("{n} x {first}")).collect::<Vec<_>>().join("; ")
     }
 }
 
@@ -407,7 +409,8 @@ fn spins(params: &SpinParams) -> Result<Vec<f64>> {
 /// For the target's tool poses (`tool`: approach, pierce, retract along the axis, base frame,
 /// [`crate::pierce::tool_poses`]) and the tool on the flange (`ee_from_tool`, `T_ee_tool`): the spin
 /// about the tool axis and the configuration whose approach -> pierce -> retract path passes with
-/// the best [`Margins::score`]. Every spin and every configuration at the approach is tried.
+/// the best [`Margins::score`] (the largest worst margin along it). Every spin and every
+/// configuration at the approach is tried.
 ///
 /// # Errors
 /// As [`check_path`] and [`ik::inverse`]; [`Error::Invalid`] for a non-finite fixed spin or a zero
