@@ -31,6 +31,8 @@ enum Command {
     Register(cmd::register::RegisterArgs),
     /// The reference paper's piercing trials in simulation (calibrate, scan + fuse, shots, pierce) as its Tables I-IV.
     Trial(cmd::trial::TrialArgs),
+    /// Detect AprilTags in PNG / JPEG images: ids, corners, hamming, decision margin; both poses given the camera and tag size.
+    Tags(cmd::tags::TagsArgs),
     /// Simulate the rig: render a scan folder (depth, color, poses with noise) plus truth.json and cad.ply.
     Simulate(cmd::simulate::SimulateArgs),
 }
@@ -76,6 +78,7 @@ fn main() -> std::process::ExitCode {
         Command::Pierce(args) => cmd::pierce::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),
+        Command::Tags(args) => cmd::tags::run(&args),
         Command::Trial(args) => cmd::trial::run(&args),
     };
     match result {

@@ -125,3 +125,42 @@ fn bad_command_lines_fail_clearly_and_never_overwrite() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("absent.ply"));
 }
+
+#[test]
+fn simulate_capture_writes_a_calibration_capture_and_refuses_scan_options() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out_dir = dir.path().join("capture");
+    let out = out_dir.to_str().expect("utf-8");
+    let text = ok(&awl(&["simulate", "--capture", "--views", "3", "--seed", "2", "--noise", "low", "-o", out]));
+    assert!(text.contains("calibration capture: 3 views of tag36h11 id 7"), "{text}");
+    let read = |name: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join(name)).expect(name)).expect("JSON")
+    };
+    let (scan, truth) = (read("scan.json"), read("truth.json"));
+    assert_eq!(scan["tag"]["id"], 7);
+    assert_eq!(scan["tag"]["size"], 0.14);
+    let views = scan["views"].as_array().expect("views");
+    assert_eq!(views.len(), 3);
+    for (i, v) in views.iter().enumerate() {
+        assert!(v["T_base_ee"].is_array() && v["T_world_base"].is_array(), "view {i}: {v}");
+        assert!(out_dir.join(v["color"].as_str().expect("color")).is_file(), "view {i}");
+        assert!(out_dir.join(v["depth"].as_str().expect("depth")).is_file(), "view {i}");
+        assert_eq!(truth["views"][i]["tag_corners_px"].as_array().map(Vec::len), Some(4), "view {i}");
+    }
+    assert!(truth["T_ee_camera"].is_array() && out_dir.join("cad.ply").is_file());
+    let refused = dir.path().join("refused");
+    let refused = refused.to_str().expect("utf-8");
+    for (args, says) in [
+        (vec!["--capture", "--scene", "shell"], "--scene"),
+        (vec!["--capture", "--shot", "flat"], "--shot"),
+        (vec!["--tag-id", "3"], "--capture"),
+        (vec!["--capture", "--tag-id", "12"], "0 to 9"),
+        (vec!["--capture", "--tag-size", "0.9"], "0.02 to 0.3 m"),
+        (vec!["--capture", "--views", "2"], "3 to 1000 views"),
+    ] {
+        let out = awl(&[&["simulate"], args.as_slice(), &["-o", refused]].concat());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains(says), "{args:?}: {stderr}");
+        assert!(!Path::new(refused).exists(), "{args:?}: nothing written");
+    }
+}

@@ -70,6 +70,7 @@ fn setup(tag_id: u32) -> Setup {
         refinement: None,
         // the CAD's footprint is at z = 0 in its frame: the floor a fused model would record
         floor: FloorPlane::new(Vector3::z(), 0.0),
+        hand_eye: None,
         warnings: Vec::new(),
     };
     let workpiece = dir.path().join("workpiece.json");

@@ -19,7 +19,7 @@ use awl::io::scan::{Scan, ViewData, read_scan};
 use awl::io::truth::{Truth, read_truth};
 use awl::io::workpiece::{read_workpiece, write_workpiece};
 use awl::mesh::TriMesh;
-use awl::pierce::{LocateParams, PierceParams, plan};
+use awl::pierce::{HandEyePrior, LocateParams, PierceParams, plan};
 use awl::pipeline::{FuseConfig, FuseOutput, fuse};
 use awl::sim::SceneKind;
 use awl::trial::pick_target;
@@ -239,11 +239,26 @@ fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String,
             pick_target(if face_centres { SceneKind::Box } else { SceneKind::Shell }, t, &f.outcome.object_from_model)
         })
         .collect();
-    let params = PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() };
     let mut errors: Vec<(String, [f64; 4])> = shot_truth.targets.iter().map(|t| (t.name.clone(), [0.0; 4])).collect();
     for (k, hand_eye) in [shot.ee_from_camera, shot_truth.ee_from_camera].into_iter().enumerate() {
         let mut s = shot.clone();
         s.ee_from_camera = hand_eye;
+        let prior = HandEyePrior::of_workpiece(wp.hand_eye.as_ref(), &s).expect("prior");
+        if let (0, Some(he), Some(truth)) = (k, &prior, shot_truth.ee_from_camera) {
+            let (before, after) = (
+                awl::transform::pose_difference(&hand_eye.expect("recorded"), &truth),
+                awl::transform::pose_difference(&he.prior.ee_from_camera, &truth),
+            );
+            println!(
+                "{shot_folder}: hand-eye recorded {:.2} mm {:.3} deg, refined from the scan {:.2} mm {:.3} deg",
+                before.0 * 1e3,
+                before.1.to_degrees(),
+                after.0 * 1e3,
+                after.1.to_degrees()
+            );
+        }
+        let params =
+            PierceParams { locate: LocateParams::with_refinement(), hand_eye: prior, ..PierceParams::default() };
         let surface = SurfaceModel::new(&f.out.model).expect("index").with_floor(wp.floor);
         let planned = plan(&surface, &wp.tag, &world_from_tag, &s, &specs, &params).expect("plan");
         let r = planned.located.refinement.as_ref().expect("refinement");
@@ -252,6 +267,14 @@ fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String,
             let tag_only =
                 (planned.located.base_from_model_tag * p.surface.point - t.p_world.expect("p_world")).norm() * 1e3;
             let a = p.axis_base.angle(&-t.n_world.expect("n_world")).to_degrees();
+            if let (Some(h), Some(truth)) = (&planned.located.hand_eye, shot_truth.ee_from_camera) {
+                let (dt, dr) = awl::transform::pose_difference(&h.ee_from_camera, &truth);
+                println!(
+                    "  hand-eye used {dt:.4} m {:.3} deg from the truth (prior: {})",
+                    dr.to_degrees(),
+                    h.prior_source
+                );
+            }
             println!(
                 "{shot_folder} `{}` with the {} hand-eye: {d:.2} mm (tag pose alone {tag_only:.2} mm), axis {a:.2} deg; \
                  shot depth {} points, fitness {:.2}, moved the tag {:.2} mm / {:.3} deg",
@@ -276,21 +299,23 @@ fn box_pierce_from_the_tilted_shot() {
     // [recorded hand-eye mm, deg, true hand-eye mm, deg]; the recorded hand-eye is about 3 mm / 0.3 deg off
     let top = errors[0].1;
     assert!(top[2] <= 2.5 && top[3] <= 1.0, "top-centre with the true hand-eye: {top:?}");
-    assert!(top[0] <= 4.0 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
+    // the recorded hand-eye, refined from the scan and the shot's views: measured 1.71 mm (before the
+    // refinement: up to 4 mm)
+    assert!(top[0] <= 2.5 && top[1] <= 1.0, "top-centre with the recorded hand-eye: {top:?}");
     let side = errors[1].1;
     assert_eq!(errors[1].0, "side-centre");
-    // measured 1.39 (true) / 1.73 mm (recorded hand-eye); 36-39 mm before the floor edge
+    // measured 2.16 (true) / 1.79 mm (recorded hand-eye, refined); 36-39 mm before the floor edge
     assert!(side[2] <= 2.5 && side[3] <= 1.0, "side-centre with the true hand-eye: {side:?}");
-    assert!(side[0] <= 4.0 && side[1] <= 1.0, "side-centre with the recorded hand-eye: {side:?}");
+    assert!(side[0] <= 2.5 && side[1] <= 1.0, "side-centre with the recorded hand-eye: {side:?}");
 }
 
 #[test]
 fn shell_pierce_from_the_tilted_shot() {
     let errors = pierce_shot(reference_shell(), "shell_seed1_shot_tilt30", false);
-    // the groove: measured 1.92 mm / 0.12 deg (true hand-eye), 2.55 mm / 0.49 deg (recorded; the
-    // 15 mm plane in the groove instead of the fold's patch: 1.01 / 1.35 deg)
+    // the groove: measured 1.45 mm / 0.08 deg (true hand-eye), 0.91 mm / 0.07 deg (recorded, refined
+    // from the scan and the shot's views; 2.55 mm / 0.49 deg before the refinement)
     for (name, e) in &errors {
         assert!(e[2] <= 3.0 && e[3] <= 1.0, "{name} with the true hand-eye: {e:?}");
-        assert!(e[0] <= 5.0 && e[1] <= 1.0, "{name} with the recorded hand-eye: {e:?}");
+        assert!(e[0] <= 2.0 && e[1] <= 1.0, "{name} with the recorded hand-eye: {e:?}");
     }
 }

@@ -1,10 +1,14 @@
 //! `awl calibrate hand-eye`: the eye-in-hand camera's `T_ee_camera` from robot poses and target
-//! observations (`awl-handeye/1` poses file, documented in `awl::handeye`), or a simulated poses file.
+//! observations (`awl-handeye/1` poses file, documented in `awl::handeye`), from a capture folder of
+//! tag images (`--capture`, `awl::handeye::capture`), or a simulated poses file.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use awl::handeye::{HandEyeMethod, HandEyeParams, HandEyeResult, calibrate};
+use awl::handeye::{
+    CaptureCalibration, CaptureParams, HandEyeMethod, HandEyeParams, HandEyeResult, calibrate, calibrate_capture,
+};
+use awl::io::capture::read_capture;
 use awl::io::handeye::{read_poses, write_poses};
 use awl::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use awl::transform::rows_from_isometry;
@@ -42,8 +46,12 @@ pub enum MethodArg {
 #[derive(clap::Args)]
 pub struct HandEyeArgs {
     /// Poses file: {"format":"awl-handeye/1","poses":[{"T_base_ee":4x4,"T_camera_target":4x4},...]}.
-    #[arg(long, required_unless_present = "write_simulated")]
+    #[arg(long, required_unless_present_any = ["write_simulated", "capture"], conflicts_with = "capture")]
     pub poses: Option<PathBuf>,
+    /// Capture folder (awl-scan/1): color images (PNG or JPEG; depth optional) of the tag named in its
+    /// scan.json, held fixed in the scene, each view with its T_base_ee. The tag is detected and posed per view.
+    #[arg(long)]
+    pub capture: Option<PathBuf>,
     /// Closed-form solver that starts the refinement.
     #[arg(long, value_enum, default_value = "park")]
     pub method: MethodArg,
@@ -57,7 +65,7 @@ pub struct HandEyeArgs {
     #[arg(long)]
     pub json: bool,
     /// Instead of calibrating, write a simulated poses file (noise 0.5 mm / 0.1 deg on the target, 0.1 mm / 0.02 deg on the arm).
-    #[arg(long, conflicts_with_all = ["poses", "output"])]
+    #[arg(long, conflicts_with_all = ["poses", "output", "capture"])]
     pub write_simulated: Option<PathBuf>,
     /// Simulated poses: how many.
     #[arg(long, default_value_t = 15, requires = "write_simulated")]
@@ -68,6 +76,85 @@ pub struct HandEyeArgs {
     /// Simulated poses: also write the true T_ee_camera and T_base_target here.
     #[arg(long, requires = "write_simulated")]
     pub truth: Option<PathBuf>,
+    /// Rejection thresholds and diagnosis limits.
+    #[command(flatten)]
+    pub tuning: HandEyeTuning,
+}
+
+/// The settings of `awl::handeye::HandEyeParams` on the command line (defaults: the library's).
+#[derive(clap::Args)]
+pub struct HandEyeTuning {
+    /// A pose is an outlier above this many times the median residual (and the floors).
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_factor)]
+    pub outlier_factor: f64,
+    /// Translation residuals below this never make an outlier, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_floor_mm)]
+    pub outlier_floor_mm: f64,
+    /// Rotation residuals below this never make an outlier, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().outlier_floor_deg)]
+    pub outlier_floor_deg: f64,
+    /// At most this fraction of the poses is rejected (0 to 1).
+    #[arg(long, default_value_t = HandEyeParams::default().max_rejected_fraction)]
+    pub max_rejected_fraction: f64,
+    /// Pairs rotating less than this do not count toward the motion diversity, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().min_pair_angle_deg)]
+    pub min_pair_angle_deg: f64,
+    /// Warn when the pairs' rotation axes span less than this, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().min_axis_angle_deg)]
+    pub min_axis_angle_deg: f64,
+    /// Refuse when the pairs' rotation axes span less than this, degrees.
+    #[arg(long, default_value_t = HandEyeParams::default().degenerate_axis_angle_deg)]
+    pub degenerate_axis_angle_deg: f64,
+    /// Weight of rotation residuals in the refinement, metres per radian.
+    #[arg(long, default_value_t = HandEyeParams::default().rotation_weight_m)]
+    pub rotation_weight_m: f64,
+    /// Refinement iteration cap.
+    #[arg(long, default_value_t = HandEyeParams::default().max_iterations)]
+    pub max_iterations: usize,
+    /// Warn when T_ee_camera's translation 1-sigma along some direction exceeds this, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().max_translation_sigma_mm)]
+    pub max_translation_sigma_mm: f64,
+    /// Warn when the 1-sigma of the target scale (tag size) exceeds this, percent.
+    #[arg(long, default_value_t = HandEyeParams::default().max_scale_sigma_percent)]
+    pub max_scale_sigma_percent: f64,
+    /// The residual noise the 1-sigmas assume at least, mm.
+    #[arg(long, default_value_t = HandEyeParams::default().min_noise_mm)]
+    pub min_noise_mm: f64,
+    /// Refuse when the poses fit this many times better with T_base_ee or T_camera_target inverted.
+    #[arg(long, default_value_t = HandEyeParams::default().inverted_fit_factor)]
+    pub inverted_fit_factor: f64,
+    /// Accept poses that look inverted (a warning instead of the refusal).
+    #[arg(long)]
+    pub allow_inverted_fit: bool,
+}
+
+impl HandEyeTuning {
+    /// The library's parameters with these settings; an error naming the flag out of range.
+    fn params(&self, method: HandEyeMethod, refine: bool) -> anyhow::Result<HandEyeParams> {
+        let params = HandEyeParams {
+            method,
+            refine,
+            rotation_weight_m: self.rotation_weight_m,
+            max_iterations: self.max_iterations,
+            outlier_factor: self.outlier_factor,
+            outlier_floor_mm: self.outlier_floor_mm,
+            outlier_floor_deg: self.outlier_floor_deg,
+            max_rejected_fraction: self.max_rejected_fraction,
+            min_pair_angle_deg: self.min_pair_angle_deg,
+            min_axis_angle_deg: self.min_axis_angle_deg,
+            degenerate_axis_angle_deg: self.degenerate_axis_angle_deg,
+            max_translation_sigma_mm: self.max_translation_sigma_mm,
+            max_scale_sigma_percent: self.max_scale_sigma_percent,
+            min_noise_mm: self.min_noise_mm,
+            inverted_fit_factor: self.inverted_fit_factor,
+            allow_inverted_fit: self.allow_inverted_fit,
+        };
+        match params.validate() {
+            Ok(()) => Ok(params),
+            Err(awl::Error::Invalid { what, message }) => anyhow::bail!("--{}: {message}", what.replace('_', "-")),
+            Err(e) => Err(e.into()),
+        }
+    }
 }
 
 /// Runs `awl calibrate`.
@@ -108,6 +195,10 @@ fn result_json(result: &HandEyeResult, params: &HandEyeParams) -> serde_json::Va
         "rejected": result.rejected,
         "rms_translation_mm": result.rms_translation_mm,
         "rms_rotation_deg": result.rms_rotation_deg,
+        "rms_all_translation_mm": result.rms_all_translation_mm,
+        "rms_all_rotation_deg": result.rms_all_rotation_deg,
+        "uncertainty": result.uncertainty,
+        "inversion_fits": result.inversion_fits,
         "residuals": result.residuals,
         "diversity": result.diversity,
         "refinement": result.refinement,
@@ -120,17 +211,16 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.write_simulated {
         return write_simulated(args, path);
     }
+    if let Some(dir) = &args.capture {
+        return hand_eye_capture(args, dir);
+    }
     let (Some(poses_path), Some(output)) = (&args.poses, &args.output) else {
         anyhow::bail!("--poses and --output are required");
     };
+    let params = handeye_params(args)?;
+    let method = params.method;
     refuse_overwriting_inputs(output, &[poses_path])?;
     let poses = read_poses(poses_path)?;
-    let method = match args.method {
-        MethodArg::Park => HandEyeMethod::Park,
-        MethodArg::Tsai => HandEyeMethod::Tsai,
-        MethodArg::Daniilidis => HandEyeMethod::Daniilidis,
-    };
-    let params = HandEyeParams { method, refine: !args.no_refine, ..HandEyeParams::default() };
     let result =
         calibrate(&poses, &params).with_context(|| format!("{}: hand-eye calibration failed", poses_path.display()))?;
     let value = result_json(&result, &params);
@@ -140,9 +230,10 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let t = result.ee_from_camera.translation.vector * 1e3;
+    let u = &result.uncertainty;
     println!(
         "hand-eye ({}): T_ee_camera t = [{:.2}, {:.2}, {:.2}] mm, rotation {:.3} deg; {} of {} poses used, \
-         residual RMS {:.3} mm / {:.4} deg; rejected {:?}; wrote {}",
+         residual RMS {:.3} mm / {:.4} deg (inliers), {:.3} mm / {:.4} deg (all poses); rejected {:?}; wrote {}",
         method.name(),
         t.x,
         t.y,
@@ -152,11 +243,120 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
         poses.len(),
         result.rms_translation_mm,
         result.rms_rotation_deg,
+        result.rms_all_translation_mm,
+        result.rms_all_rotation_deg,
         result.rejected,
         output.display()
     );
+    let (s, r) = (u.translation_sigma_mm, u.rotation_sigma_deg);
+    println!(
+        "1-sigma: translation [{:.2}, {:.2}, {:.2}] mm (flange axes), rotation [{:.3}, {:.3}, {:.3}] deg (camera \
+         axes), target scale {:.2} %",
+        s[0], s[1], s[2], r[0], r[1], r[2], u.scale_sigma_percent
+    );
     for w in &result.warnings {
         eprintln!("warning: {w}");
+    }
+    Ok(())
+}
+
+/// The solver's settings from the arguments.
+/// The solver settings of the command line (method, refinement, the thresholds), checked.
+fn handeye_params(args: &HandEyeArgs) -> anyhow::Result<HandEyeParams> {
+    let method = match args.method {
+        MethodArg::Park => HandEyeMethod::Park,
+        MethodArg::Tsai => HandEyeMethod::Tsai,
+        MethodArg::Daniilidis => HandEyeMethod::Daniilidis,
+    };
+    args.tuning.params(method, !args.no_refine)
+}
+
+/// The per-view part of the `--capture` output.
+fn capture_json(dir: &Path, capture: &CaptureCalibration, params: &CaptureParams) -> serde_json::Value {
+    let views: Vec<serde_json::Value> = capture
+        .views
+        .iter()
+        .map(|v| {
+            let mut value = serde_json::to_value(v).unwrap_or_default();
+            value["T_camera_tag"] = json!(v.camera_from_tag.as_ref().map(rows_from_isometry));
+            value["inlier"] = json!(v.residual.map(|r| r.inlier));
+            value
+        })
+        .collect();
+    json!({
+        "dir": dir,
+        "views": views,
+        "views_found": capture.poses.len(),
+        "thorough_search": capture.thorough_search,
+        "detector": params.detector,
+        "max_rmse_px": params.max_rmse_px,
+        "min_side_px": params.min_side_px,
+    })
+}
+
+fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
+    let Some(output) = &args.output else { anyhow::bail!("--output is required") };
+    let capture = read_capture(dir)?;
+    let mut inputs = vec![capture.manifest_path()];
+    for v in &capture.views {
+        inputs.push(capture.dir.join(&v.color));
+        inputs.extend(v.depth.as_ref().map(|d| capture.dir.join(d)));
+    }
+    refuse_overwriting_inputs(output, &inputs.iter().map(PathBuf::as_path).collect::<Vec<_>>())?;
+    let params = CaptureParams { handeye: handeye_params(args)?, ..CaptureParams::default() };
+    let calibration = calibrate_capture(&capture, &params)
+        .with_context(|| format!("{}: hand-eye calibration from the capture failed", dir.display()))?;
+    let result = &calibration.result;
+    let mut value = result_json(result, &params.handeye);
+    value["capture"] = capture_json(dir, &calibration, &params);
+    write_json(output, &value)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&value)?);
+        return Ok(());
+    }
+    for v in &calibration.views {
+        match (&v.why_not, v.residual) {
+            (Some(why), _) => println!("view {:3}: tag not used: {why}", v.index),
+            (None, Some(r)) => println!(
+                "view {:3}: solution {} ({}), {:.3} px; residual {:.3} mm / {:.4} deg{}",
+                v.index,
+                v.solution.unwrap_or(1),
+                v.chosen_by.map_or("", |c| match c {
+                    awl::handeye::FlipChoice::Unambiguous => "unambiguous",
+                    awl::handeye::FlipChoice::Depth => "by depth",
+                    awl::handeye::FlipChoice::Consistency => "by consistency",
+                }),
+                v.rmse_px.unwrap_or(f64::NAN),
+                r.translation_mm,
+                r.rotation_deg,
+                if r.inlier { "" } else { "  REJECTED" }
+            ),
+            (None, None) => println!("view {:3}: found", v.index),
+        }
+    }
+    let t = result.ee_from_camera.translation.vector * 1e3;
+    println!(
+        "hand-eye ({}) from {} of {} views: T_ee_camera t = [{:.2}, {:.2}, {:.2}] mm, rotation {:.3} deg; {} poses \
+         used, residual RMS {:.3} mm / {:.4} deg; rejected views {:?}; wrote {}",
+        params.handeye.method.name(),
+        calibration.poses.len(),
+        capture.views.len(),
+        t.x,
+        t.y,
+        t.z,
+        result.ee_from_camera.rotation.angle().to_degrees(),
+        calibration.poses.len() - result.rejected.len(),
+        result.rms_translation_mm,
+        result.rms_rotation_deg,
+        result
+            .rejected
+            .iter()
+            .filter_map(|&k| calibration.views.iter().find(|v| v.pose == Some(k)).map(|v| v.index))
+            .collect::<Vec<_>>(),
+        output.display()
+    );
+    for w in &result.warnings {
+        eprintln!("warning: {w} (poses are the views found, in order)");
     }
     Ok(())
 }

@@ -9,4 +9,5 @@ pub mod info;
 pub mod pierce;
 pub mod register;
 pub mod simulate;
+pub mod tags;
 pub mod trial;

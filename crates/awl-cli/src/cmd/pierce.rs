@@ -10,7 +10,8 @@ use awl::io::plan::{PlanSources, plan_json, write_plan};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
 use awl::pierce::{
-    AxisChoice, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, techman_packets, urscript,
+    AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, techman_packets,
+    urscript,
 };
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
@@ -103,12 +104,18 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let model =
         read_cloud(&model_path).with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
     let mut shot = read_scan(&args.shot)?;
-    let hand_eye_source = match &args.hand_eye {
+    // the hand-eye the shot's views start from: a given calibration, else the workpiece's (refined
+    // from the scan) when the shot records the scan's, else the shot's recorded one
+    let (hand_eye_source, prior) = match &args.hand_eye {
         Some(path) => {
-            shot.ee_from_camera = Some(read_ee_from_camera(path)?);
-            path.display().to_string()
+            let x = read_ee_from_camera(path)?;
+            shot.ee_from_camera = Some(x);
+            (path.display().to_string(), Some(HandEyePrior::calibrated(x, &path.display().to_string())))
         }
-        None => "scan.json".to_string(),
+        None => match HandEyePrior::of_workpiece(workpiece.hand_eye.as_ref(), &shot)? {
+            Some(p) => (format!("{} ({})", args.workpiece.display(), p.source), Some(p)),
+            None => ("scan.json".to_string(), None),
+        },
     };
     let params = PierceParams {
         axis: match args.axis {
@@ -121,6 +128,7 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
             retract_m: args.retract_m.unwrap_or(args.approach_m),
         },
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
+        hand_eye: prior,
         ..PierceParams::default()
     };
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);

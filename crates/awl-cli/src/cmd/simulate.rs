@@ -1,10 +1,13 @@
-//! `awl simulate`: render a synthetic scan folder (or a piercing-time shot) with ground truth.
+//! `awl simulate`: render a synthetic scan folder (or a piercing-time shot, or a hand-eye
+//! calibration capture) with ground truth.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
+use awl::sim::capture::{CaptureParams, simulate_capture};
 use awl::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, simulate, write_simulation};
+use awl::transform::pose_difference;
 
 /// The workpiece to simulate.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -45,7 +48,7 @@ pub struct SimulateArgs {
     /// Workpiece.
     #[arg(long, value_enum, default_value = "box")]
     pub scene: SceneArg,
-    /// Number of views (default 12; 2 in shot mode, at most 3 there).
+    /// Number of views (default 12; 2 in shot mode, at most 3 there; 20 in capture mode).
     #[arg(long)]
     pub views: Option<usize>,
     /// Random seed: the same seed gives the same scan, bit for bit.
@@ -57,6 +60,17 @@ pub struct SimulateArgs {
     /// Simulate a piercing-time shot (world = robot base) instead of a scan.
     #[arg(long, value_enum)]
     pub shot: Option<ShotArg>,
+    /// Simulate a hand-eye calibration capture instead of a scan: color and depth views of a tag on a
+    /// board held fixed in front of the arm base (world = robot base), each with its noisy T_base_ee;
+    /// scan.json's T_ee_camera carries the rig's calibration error, truth.json the true one.
+    #[arg(long, conflicts_with_all = ["scene", "shot"])]
+    pub capture: bool,
+    /// tag36h11 id on the capture's board, 0 to 9 (default 7; capture mode only).
+    #[arg(long, requires = "capture")]
+    pub tag_id: Option<u32>,
+    /// Black-border edge of the capture's tag, metres, 0.02 to 0.3 (default 0.14; capture mode only).
+    #[arg(long, requires = "capture")]
+    pub tag_size: Option<f64>,
     /// Seed of the camera (intrinsics, global depth-scale error): give a shot the seed of the scan
     /// taken with the same camera. Default: --seed.
     #[arg(long)]
@@ -69,18 +83,22 @@ pub struct SimulateArgs {
     pub force: bool,
 }
 
+fn noise(arg: NoiseArg) -> NoiseLevel {
+    match arg {
+        NoiseArg::None => NoiseLevel::None,
+        NoiseArg::Low => NoiseLevel::Low,
+        NoiseArg::Realistic => NoiseLevel::Realistic,
+        NoiseArg::Harsh => NoiseLevel::Harsh,
+    }
+}
+
 fn params(args: &SimulateArgs) -> SimParams {
     let scene = match args.scene {
         SceneArg::Box => SceneKind::Box,
         SceneArg::Shell => SceneKind::Shell,
         SceneArg::Cylinder => SceneKind::Cylinder,
     };
-    let noise = match args.noise {
-        NoiseArg::None => NoiseLevel::None,
-        NoiseArg::Low => NoiseLevel::Low,
-        NoiseArg::Realistic => NoiseLevel::Realistic,
-        NoiseArg::Harsh => NoiseLevel::Harsh,
-    };
+    let noise = noise(args.noise);
     let shot = args.shot.map(|s| match s {
         ShotArg::Flat => ShotPose::Flat,
         ShotArg::Tilt30 => ShotPose::Tilt30,
@@ -89,8 +107,49 @@ fn params(args: &SimulateArgs) -> SimParams {
     SimParams { scene, views, seed: args.seed, noise, shot, camera_seed: args.camera_seed }
 }
 
+fn capture_params(args: &SimulateArgs) -> CaptureParams {
+    let default = CaptureParams::default();
+    CaptureParams {
+        views: args.views.unwrap_or(default.views),
+        seed: args.seed,
+        noise: noise(args.noise),
+        tag_id: args.tag_id.unwrap_or(default.tag_id),
+        tag_size_m: args.tag_size.unwrap_or(default.tag_size_m),
+        camera_seed: args.camera_seed,
+        ..default
+    }
+}
+
+fn run_capture(args: &SimulateArgs) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let params = capture_params(args);
+    let sim = simulate_capture(&params).context("capture simulation failed")?;
+    write_simulation(&args.output, &sim, args.force)
+        .with_context(|| format!("cannot write the capture folder {}", args.output.display()))?;
+    let (error_m, error_rad) = match (sim.truth.ee_from_camera, sim.scan.ee_from_camera) {
+        (Some(truth), Some(recorded)) => pose_difference(&truth, &recorded),
+        _ => (f64::NAN, f64::NAN),
+    };
+    println!(
+        "simulated calibration capture: {} views of tag36h11 id {} ({} m), seed {}, noise {}; scan.json's T_ee_camera is {:.2} mm / {:.3} deg off the true one in truth.json -> {} ({:.1} s)",
+        sim.views.len(),
+        params.tag_id,
+        params.tag_size_m,
+        params.seed,
+        params.noise.name(),
+        error_m * 1e3,
+        error_rad.to_degrees(),
+        args.output.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 /// Runs `awl simulate`.
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
+    if args.capture {
+        return run_capture(args);
+    }
     let start = Instant::now();
     let params = params(args);
     let sim = simulate(&params).context("simulation failed")?;

@@ -7,9 +7,11 @@ use std::time::Instant;
 
 use anyhow::Context;
 use awl::io::scan::read_scan;
-use awl::pierce::{LocateParams, PierceParams};
+use awl::pierce::{HandEyePrior, LocateParams, PierceParams};
 use awl::pipeline::FuseConfig;
+use awl::sim::rig_ee_from_camera;
 use awl::sim::{SceneKind, ShotPose, SimParams, simulate, write_simulation};
+use awl::transform::pose_difference;
 use awl::trial::{ShotSetup, TrialRow, TrialSummary, calibrate_rig, format_table, prepare_workpiece, run_shot};
 use serde_json::json;
 
@@ -37,6 +39,12 @@ pub struct TrialArgs {
     /// Poses of the simulated hand-eye calibration capture.
     #[arg(long, default_value_t = 20)]
     pub calibration_poses: usize,
+    /// Calibrate the hand-eye from simulated poses first and pierce with it (a fresh calibration);
+    /// without it the shots use the scan's recorded T_ee_camera (about 3 mm / 0.3 deg off), refined
+    /// by the fuse from the scan's base stops and by each shot's views, as a user without a fresh
+    /// calibration would.
+    #[arg(long)]
+    pub calibrate: bool,
     /// Output folder: scan/, fuse/, shots/NN/, table.txt and trial.json (must not exist or be empty, unless --force).
     #[arg(short = 'o', long = "output", default_value = "awl-trial")]
     pub output: PathBuf,
@@ -62,6 +70,8 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "locate_rotation_deg": r.locate_rotation_rad.to_degrees(),
         "model_normal_error_deg": r.model_normal_error_rad.to_degrees(),
         "axis_error_at_point_deg": r.axis_error_at_point_rad.to_degrees(),
+        "hand_eye_error_m": r.hand_eye_error.map(|e| e.0),
+        "hand_eye_error_deg": r.hand_eye_error.map(|e| e.1.to_degrees()),
     })
 }
 
@@ -83,13 +93,18 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     };
     let pose = if args.tilt == 30 { ShotPose::Tilt30 } else { ShotPose::Flat };
 
-    let hand_eye = calibrate_rig(args.seed, args.calibration_poses).context("hand-eye calibration")?;
-    say(format!(
-        "[1/3] hand-eye calibrated from {} simulated poses: {:.2} mm / {:.3} deg from the true T_ee_camera",
-        hand_eye.poses,
-        hand_eye.error_m * 1e3,
-        hand_eye.error_rad.to_degrees()
-    ));
+    let calibrated = if args.calibrate {
+        let hand_eye = calibrate_rig(args.seed, args.calibration_poses).context("hand-eye calibration")?;
+        say(format!(
+            "[1/3] hand-eye calibrated from {} simulated poses: {:.2} mm / {:.3} deg from the true T_ee_camera",
+            hand_eye.poses,
+            hand_eye.error_m * 1e3,
+            hand_eye.error_rad.to_degrees()
+        ));
+        Some(hand_eye)
+    } else {
+        None
+    };
 
     let t = Instant::now();
     let sim = simulate(&SimParams { seed: args.seed, ..SimParams::scan(scene) }).context("simulating the scan")?;
@@ -111,13 +126,39 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         wp.spec
     ));
 
+    let truth_he = rig_ee_from_camera();
+    let off = |x: &nalgebra::Isometry3<f64>| {
+        let (dt, dr) = pose_difference(x, &truth_he);
+        format!("{:.2} mm / {:.3} deg", dt * 1e3, dr.to_degrees())
+    };
+    let (ee_from_camera, prior) = match &calibrated {
+        Some(c) => (c.ee_from_camera, HandEyePrior::calibrated(c.ee_from_camera, "calibrated (--calibrate)")),
+        None => {
+            let recorded = scan.ee_from_camera.context("the simulated scan records no T_ee_camera")?;
+            let report = workpiece.hand_eye.as_ref().context("the fuse left no hand-eye estimate")?;
+            let prior = HandEyePrior::of_report(report)?;
+            say(format!(
+                "[1/3] hand-eye: the scan's recorded T_ee_camera is {} from the truth; refined from the scan's {} base \
+                 stops: {}{}",
+                off(&recorded),
+                report.stops_used.len(),
+                off(&prior.prior.ee_from_camera),
+                if report.refused.is_empty() { String::new() } else { format!(" (not refined: {})", report.refused) }
+            ));
+            (recorded, prior)
+        }
+    };
     let setup = ShotSetup {
         scene,
         pose,
         seed: args.seed,
         camera_seed: args.seed,
-        ee_from_camera: hand_eye.ee_from_camera,
-        params: PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() },
+        ee_from_camera,
+        params: PierceParams {
+            locate: LocateParams::with_refinement(),
+            hand_eye: Some(prior),
+            ..PierceParams::default()
+        },
     };
     let bar = stage_bar(args.quiet);
     bar.set_length(args.trials as u64);
@@ -147,7 +188,14 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         &json!({
             "scene": scene.name(), "pose": pose.name(), "tilt_deg": args.tilt, "seed": args.seed,
             "target": wp.target.name, "target_spec": wp.spec.to_string(),
-            "hand_eye": { "poses": hand_eye.poses, "error_m": hand_eye.error_m, "error_deg": hand_eye.error_rad.to_degrees() },
+            "hand_eye": {
+                "calibrated_poses": calibrated.as_ref().map(|c| c.poses),
+                "prior": setup.params.hand_eye.as_ref().map(|h| h.source.clone()),
+                "start_error_m": pose_difference(&ee_from_camera, &truth_he).0,
+                "start_error_deg": pose_difference(&ee_from_camera, &truth_he).1.to_degrees(),
+                "prior_error_m": setup.params.hand_eye.as_ref().map(|h| pose_difference(&h.prior.ee_from_camera, &truth_he).0),
+                "prior_error_deg": setup.params.hand_eye.as_ref().map(|h| pose_difference(&h.prior.ee_from_camera, &truth_he).1.to_degrees()),
+            },
             "summary": { "trials": s.trials, "mean_m": s.mean_m, "std_m": s.std_m, "max_m": s.max_m,
                          "mean_axis_error_deg": s.mean_axis_error_rad.to_degrees(),
                          "max_axis_error_deg": s.max_axis_error_rad.to_degrees(),

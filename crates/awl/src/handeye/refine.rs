@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use crate::handeye::HandEyePose;
 
-type Vector12 = SVector<f64, 12>;
+pub(crate) type Vector12 = SVector<f64, 12>;
 type Matrix12 = SMatrix<f64, 12, 12>;
 
 /// Statistics of one refinement.
@@ -29,7 +29,7 @@ pub struct RefineStats {
 }
 
 /// The weighted residual of one pose.
-fn residual(p: &HandEyePose, x: &Isometry3<f64>, y_inv: &Isometry3<f64>, w: f64) -> Vector6<f64> {
+pub(crate) fn residual(p: &HandEyePose, x: &Isometry3<f64>, y_inv: &Isometry3<f64>, w: f64) -> Vector6<f64> {
     let d = y_inv * p.base_from_ee * x * p.camera_from_target;
     let r = d.rotation.scaled_axis() * w;
     let t = d.translation.vector;
@@ -49,7 +49,7 @@ fn perturb(iso: &Isometry3<f64>, dt: Vector3<f64>, dw: Vector3<f64>) -> Isometry
     )
 }
 
-fn apply(x: &Isometry3<f64>, y: &Isometry3<f64>, s: &Vector12) -> (Isometry3<f64>, Isometry3<f64>) {
+pub(crate) fn apply(x: &Isometry3<f64>, y: &Isometry3<f64>, s: &Vector12) -> (Isometry3<f64>, Isometry3<f64>) {
     let v = |k: usize| Vector3::new(s[k], s[k + 1], s[k + 2]);
     (perturb(x, v(0), v(3)), perturb(y, v(6), v(9)))
 }

@@ -3,10 +3,12 @@
 use nalgebra::Isometry3;
 
 use crate::error::{Error, Result};
+use crate::handeye::diagnosis::{Diagnosis, HandEyeWarning, Inversion, InversionFit, inversion_fits};
 use crate::handeye::diversity::{MotionDiversity, diversity};
 use crate::handeye::motion::{Motion, all_pairs};
 use crate::handeye::refine::{RefineStats, cost, refine};
 use crate::handeye::residual::{PoseResidual, implied_targets, median, residuals, robust_mean};
+use crate::handeye::uncertainty::{HandEyeUncertainty, uncertainty};
 use crate::handeye::{HandEyeMethod, HandEyeParams, HandEyePose, HandEyeResult, daniilidis, park, tsai};
 
 /// Largest deviation of a quaternion's norm from 1 accepted as rigid.
@@ -35,29 +37,53 @@ fn validate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<()> {
         check_isometry(&p.base_from_ee, || format!("poses[{i}].T_base_ee"))?;
         check_isometry(&p.camera_from_target, || format!("poses[{i}].T_camera_target"))?;
     }
-    let positive = [
-        ("rotation_weight_m", params.rotation_weight_m),
-        ("outlier_factor", params.outlier_factor),
-        ("outlier_floor_mm", params.outlier_floor_mm),
-        ("outlier_floor_deg", params.outlier_floor_deg),
-    ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(Error::invalid(name, format!("must be a positive number, got {v}")));
+    params.validate()
+}
+
+impl HandEyeParams {
+    /// Checks every setting.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field (`outlier_factor`, ...) that is out of range.
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("rotation_weight_m", self.rotation_weight_m),
+            ("outlier_factor", self.outlier_factor),
+            ("outlier_floor_mm", self.outlier_floor_mm),
+            ("outlier_floor_deg", self.outlier_floor_deg),
+            ("max_translation_sigma_mm", self.max_translation_sigma_mm),
+            ("max_scale_sigma_percent", self.max_scale_sigma_percent),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::invalid(name, format!("must be a positive number, got {v}")));
+            }
         }
-    }
-    let angles = [
-        ("min_pair_angle_deg", params.min_pair_angle_deg),
-        ("min_axis_angle_deg", params.min_axis_angle_deg),
-        ("degenerate_axis_angle_deg", params.degenerate_axis_angle_deg),
-        ("max_rejected_fraction", params.max_rejected_fraction),
-    ];
-    for (name, v) in angles {
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(Error::invalid(name, format!("must be a non-negative number, got {v}")));
+        let angles = [
+            ("min_pair_angle_deg", self.min_pair_angle_deg),
+            ("min_axis_angle_deg", self.min_axis_angle_deg),
+            ("degenerate_axis_angle_deg", self.degenerate_axis_angle_deg),
+            ("max_rejected_fraction", self.max_rejected_fraction),
+            ("min_noise_mm", self.min_noise_mm),
+        ];
+        for (name, v) in angles {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(name, format!("must be a non-negative number, got {v}")));
+            }
         }
+        if self.max_rejected_fraction > 1.0 {
+            let v = self.max_rejected_fraction;
+            return Err(Error::invalid("max_rejected_fraction", format!("must be at most 1, got {v}")));
+        }
+        if !(self.inverted_fit_factor.is_finite() && self.inverted_fit_factor >= 1.0) {
+            let v = self.inverted_fit_factor;
+            return Err(Error::invalid("inverted_fit_factor", format!("must be a number >= 1, got {v}")));
+        }
+        if self.refine && self.max_iterations == 0 {
+            return Err(Error::invalid("max_iterations", "must be at least 1 when refining"));
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 /// One solve on a subset of poses.
@@ -141,12 +167,88 @@ pub fn calibrate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<HandEy
                 rejected.push(worst);
                 continue;
             }
-            warnings.push(format!(
-                "pose {worst} still looks like an outlier, but {} of {n} poses are rejected already (the cap)",
-                rejected.len()
+            warnings.push(HandEyeWarning::new(
+                Diagnosis::RejectionCapReached,
+                format!(
+                    "pose {worst} still looks like an outlier, but {} of {n} poses are rejected already (the cap, \
+                     max_rejected_fraction {}): check the capture, or raise the cap",
+                    rejected.len(),
+                    params.max_rejected_fraction
+                ),
             ));
         }
-        return Ok(finish(solve, res, rejected, warnings, params));
+        let inliers: Vec<HandEyePose> = poses.iter().zip(&inlier).filter(|(_, k)| **k).map(|(p, _)| *p).collect();
+        let uncertainty = uncertainty(
+            &inliers,
+            &solve.refined,
+            &solve.base_from_target,
+            params.rotation_weight_m,
+            params.min_noise_mm * 1e-3,
+        );
+        let fits = inversion_fits(poses);
+        check_convention(&res, &fits, &solve, params, &mut warnings)?;
+        return Ok(finish(solve, res, rejected, warnings, uncertainty, fits, params));
+    }
+}
+
+/// Refuses (or, with `allow_inverted_fit`, warns) when the poses look inverted: one field inverted
+/// fits them `inverted_fit_factor` times better than the poses as given (see
+/// [`HandEyeParams::inverted_fit_factor`]); or both fields inverted, which fits exactly as well (the
+/// solver then returns `T_base_target` as `T_ee_camera` and the reverse), betrayed by a camera
+/// farther from the flange than the target from the robot base.
+fn check_convention(
+    res: &[PoseResidual],
+    fits: &[InversionFit],
+    solve: &Solve,
+    params: &HandEyeParams,
+    warnings: &mut Vec<HandEyeWarning>,
+) -> Result<()> {
+    let mut given: Vec<f64> = res.iter().map(|r| r.translation_mm).collect();
+    let given = median(&mut given);
+    let best = fits
+        .iter()
+        .filter(|f| f.inversion != Inversion::Both)
+        .min_by(|a, b| a.median_translation_mm.total_cmp(&b.median_translation_mm));
+    let accept = "or accept the poses as given with allow_inverted_fit (--allow-inverted-fit)";
+    let (what, message) = match best {
+        Some(best)
+            if given > params.outlier_floor_mm && best.median_translation_mm * params.inverted_fit_factor <= given =>
+        {
+            let fields = best.inversion.fields();
+            let (what, holds) = match best.inversion {
+                Inversion::BaseFromEe => ("poses[*].T_base_ee", "T_ee_base"),
+                _ => ("poses[*].T_camera_target", "T_target_camera"),
+            };
+            let message = format!(
+                "the poses fit {:.0}x better with every {fields} inverted (median residual {:.2} mm / {:.3} deg, \
+                 against {given:.1} mm as given): the file most likely holds {holds}; invert {fields} in every \
+                 pose, {accept}",
+                given / best.median_translation_mm.max(1e-12),
+                best.median_translation_mm,
+                best.median_rotation_deg,
+            );
+            (what, message)
+        }
+        _ => {
+            let camera_m = solve.refined.translation.vector.norm();
+            let target_m = solve.base_from_target.translation.vector.norm();
+            if camera_m <= target_m {
+                return Ok(());
+            }
+            let message = format!(
+                "the solution puts the camera {camera_m:.3} m from the flange, farther than the target from the robot \
+                 base ({target_m:.3} m): the file most likely holds T_ee_base and T_target_camera (both inverted fit \
+                 exactly as well, with T_ee_camera and T_base_target swapped); invert both fields in every pose, \
+                 {accept}"
+            );
+            ("poses[*].T_base_ee and T_camera_target", message)
+        }
+    };
+    if params.allow_inverted_fit {
+        warnings.push(HandEyeWarning::new(Diagnosis::InvertedConvention, message));
+        Ok(())
+    } else {
+        Err(Error::invalid(what, message))
     }
 }
 
@@ -154,24 +256,76 @@ fn finish(
     solve: Solve,
     res: Vec<PoseResidual>,
     rejected: Vec<usize>,
-    mut warnings: Vec<String>,
+    mut warnings: Vec<HandEyeWarning>,
+    uncertainty: HandEyeUncertainty,
+    inversion_fits: Vec<InversionFit>,
     params: &HandEyeParams,
 ) -> HandEyeResult {
     let d = solve.diversity;
     if d.axis_angle_deg < params.min_axis_angle_deg {
-        warnings.push(format!(
-            "poor motion diversity: the rotation axes span only {:.2} deg (want >= {} deg); the rotation about \
-             the dominant axis and the translation along it are poorly determined",
-            d.axis_angle_deg, params.min_axis_angle_deg
+        warnings.push(HandEyeWarning::new(
+            Diagnosis::PoorMotionDiversity,
+            format!(
+                "poor motion diversity: the rotation axes span only {:.2} deg (want >= {} deg); the rotation about \
+                 the dominant axis and the translation along it are poorly determined: rotate the flange about \
+                 other axes too",
+                d.axis_angle_deg, params.min_axis_angle_deg
+            ),
         ));
     }
     if !solve.stats.converged {
-        warnings.push(format!("refinement did not converge in {} iterations", solve.stats.iterations));
+        warnings.push(HandEyeWarning::new(
+            Diagnosis::RefinementNotConverged,
+            format!(
+                "refinement did not converge in {} iterations (max_iterations): the result may not be the \
+                 least-squares solution",
+                solve.stats.iterations
+            ),
+        ));
     }
+    let u = &uncertainty;
+    if u.worst_translation_sigma_mm > params.max_translation_sigma_mm {
+        let [x, y, z] = u.worst_translation_direction;
+        warnings.push(HandEyeWarning::new(
+            Diagnosis::TranslationUndetermined,
+            format!(
+                "translation not determined: T_ee_camera's translation has a 1-sigma of {:.2} mm along [{x:.2}, \
+                 {y:.2}, {z:.2}] (flange frame; max_translation_sigma_mm {}; per axis x {:.2}, y {:.2}, z {:.2} mm): \
+                 add poses that rotate the flange more, and about axes perpendicular to that direction \
+                 (tilt the camera more around the target)",
+                u.worst_translation_sigma_mm,
+                params.max_translation_sigma_mm,
+                u.translation_sigma_mm[0],
+                u.translation_sigma_mm[1],
+                u.translation_sigma_mm[2],
+            ),
+        ));
+    }
+    if u.scale_sigma_percent > params.max_scale_sigma_percent {
+        warnings.push(HandEyeWarning::new(
+            Diagnosis::ScaleUndetermined,
+            format!(
+                "target scale not determined: a scale factor on the T_camera_target translations (a wrong tag or \
+                 board size) has a 1-sigma of {:.2} % (max_scale_sigma_percent {}); a 3 % size error would move \
+                 T_ee_camera's translation by {:.1} mm without raising the residuals: check the tag size, and add \
+                 poses at other distances from the target (nearer and farther) with the flange moving, not only \
+                 rotating about the target",
+                u.scale_sigma_percent,
+                params.max_scale_sigma_percent,
+                3.0 * u.translation_mm_per_scale_percent,
+            ),
+        ));
+    }
+    let rms = |rows: &[&PoseResidual]| {
+        let count = rows.len().max(1) as f64;
+        (
+            (rows.iter().map(|r| r.translation_mm.powi(2)).sum::<f64>() / count).sqrt(),
+            (rows.iter().map(|r| r.rotation_deg.powi(2)).sum::<f64>() / count).sqrt(),
+        )
+    };
     let inliers: Vec<&PoseResidual> = res.iter().filter(|r| r.inlier).collect();
-    let count = inliers.len().max(1) as f64;
-    let rms_translation_mm = (inliers.iter().map(|r| r.translation_mm.powi(2)).sum::<f64>() / count).sqrt();
-    let rms_rotation_deg = (inliers.iter().map(|r| r.rotation_deg.powi(2)).sum::<f64>() / count).sqrt();
+    let (rms_translation_mm, rms_rotation_deg) = rms(&inliers);
+    let (rms_all_translation_mm, rms_all_rotation_deg) = rms(&res.iter().collect::<Vec<_>>());
     HandEyeResult {
         ee_from_camera: solve.refined,
         closed_form_ee_from_camera: solve.closed,
@@ -181,6 +335,10 @@ fn finish(
         rejected,
         rms_translation_mm,
         rms_rotation_deg,
+        rms_all_translation_mm,
+        rms_all_rotation_deg,
+        uncertainty,
+        inversion_fits,
         diversity: d,
         refinement: solve.stats,
         warnings,

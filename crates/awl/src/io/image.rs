@@ -1,4 +1,7 @@
-//! PNG files: 16-bit depth images and 8-bit color images.
+//! Image files: 16-bit depth PNGs, 8-bit color PNGs, and color JPEGs (baseline and progressive).
+//!
+//! [`read_color_image`] reads a color image of either kind, told apart by its first bytes (the
+//! extension only names the expected kind in the error when neither signature matches).
 
 use std::path::Path;
 
@@ -142,6 +145,111 @@ pub fn read_color_png_every_nth(path: &Path, step: usize) -> Result<(ColorImage,
         if channels < 3 { [c[0], c[0], c[0]] } else { [c[0], c[1], c[2]] }
     })?;
     Ok((ColorImage { width, height, data }, full))
+}
+
+/// The 8 bytes every PNG starts with.
+const PNG_SIGNATURE: [u8; 8] = *b"\x89PNG\r\n\x1a\n";
+/// A JPEG starts with its start-of-image marker and the first marker's `0xFF`.
+const JPEG_SIGNATURE: [u8; 3] = [0xFF, 0xD8, 0xFF];
+/// Largest JPEG side accepted, pixels (the decoder refuses a larger header before allocating).
+pub const MAX_JPEG_SIDE_PX: usize = 16_384;
+
+/// The kind of a color image file, by its first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColorFileKind {
+    /// Portable Network Graphics.
+    Png,
+    /// JPEG (JFIF / Exif).
+    Jpeg,
+}
+
+/// The kind of color image `bytes` hold, by their signature; `None` when neither PNG nor JPEG.
+pub fn color_file_kind(bytes: &[u8]) -> Option<ColorFileKind> {
+    if bytes.starts_with(&PNG_SIGNATURE) {
+        Some(ColorFileKind::Png)
+    } else if bytes.starts_with(&JPEG_SIGNATURE) {
+        Some(ColorFileKind::Jpeg)
+    } else {
+        None
+    }
+}
+
+/// Reads an 8-bit color image, PNG or JPEG (by its signature, whatever its extension), as RGB:
+/// PNG as [`read_color_png`]; JPEG baseline or progressive, gray JPEGs expanded to RGB.
+///
+/// # Errors
+/// [`Error::Io`] when unreadable; [`Error::Format`] naming the file when it is neither PNG nor
+/// JPEG, or does not decode (a truncated or corrupt JPEG is refused, never half-filled), or a JPEG
+/// side exceeds [`MAX_JPEG_SIDE_PX`].
+pub fn read_color_image(path: &Path) -> Result<ColorImage> {
+    Ok(read_color_image_every_nth(path, 1)?.0)
+}
+
+/// [`read_color_image`] keeping every `step`-th row and column only (from the first; `step` 0 is
+/// taken as 1), and the file's full `(width, height)`, as [`read_color_png_every_nth`]. A JPEG is
+/// decoded whole, then thinned.
+///
+/// # Errors
+/// As [`read_color_image`].
+pub fn read_color_image_every_nth(path: &Path, step: usize) -> Result<(ColorImage, (u32, u32))> {
+    let bytes = read_bytes(path)?;
+    match color_file_kind(&bytes) {
+        Some(ColorFileKind::Png) => read_color_png_every_nth(path, step),
+        Some(ColorFileKind::Jpeg) => {
+            let (image, full) = decode_jpeg(path, bytes)?;
+            Ok((every_nth_color(image, step), full))
+        }
+        None => {
+            let ext = crate::io::extension(path);
+            let expected = match ext.as_str() {
+                "jpg" | "jpeg" => "a JPEG (no FF D8 FF start-of-image marker)",
+                "png" => "a PNG (no PNG signature)",
+                _ => "a PNG or JPEG color image",
+            };
+            Err(Error::format(path, format!("not {expected}")))
+        }
+    }
+}
+
+/// Decodes a whole JPEG file's `bytes` to RGB: the image and its `(width, height)`.
+fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<(ColorImage, (u32, u32))> {
+    use zune_jpeg::zune_core::bytestream::ZCursor;
+    use zune_jpeg::zune_core::colorspace::ColorSpace;
+    use zune_jpeg::zune_core::options::DecoderOptions;
+    let options = DecoderOptions::default()
+        .set_max_width(MAX_JPEG_SIDE_PX)
+        .set_max_height(MAX_JPEG_SIDE_PX)
+        // a premature end or a corrupt entropy stream is an error, not a gray-filled image
+        .set_strict_mode(true)
+        .jpeg_set_out_colorspace(ColorSpace::RGB);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+    let bad = |e: zune_jpeg::errors::DecodeErrors| Error::format(path, format!("not a decodable JPEG: {e}"));
+    decoder.decode_headers().map_err(bad)?;
+    let (width, height) = decoder.dimensions().ok_or_else(|| Error::format(path, "JPEG header without a size"))?;
+    let size = decoder.output_buffer_size().ok_or_else(|| Error::format(path, "JPEG image is too large to decode"))?;
+    let mut raw = vec![0u8; size];
+    decoder.decode_into(&mut raw).map_err(bad)?;
+    let channels = decoder.output_colorspace().map_or(3, |c| c.num_components());
+    let (width, height) = (width as u32, height as u32);
+    let pixels = width as usize * height as usize;
+    if channels == 0 || raw.len() != pixels * channels {
+        return Err(Error::format(path, format!("JPEG decoded to {} bytes for {width}x{height}", raw.len())));
+    }
+    let data = raw.chunks_exact(channels).map(|c| if channels < 3 { [c[0]; 3] } else { [c[0], c[1], c[2]] }).collect();
+    Ok((ColorImage { width, height, data }, (width, height)))
+}
+
+/// Every `step`-th row and column of `image` (from the first; `step` 0 is taken as 1), on the grid
+/// [`every_nth_grid`] gives.
+fn every_nth_color(image: ColorImage, step: usize) -> ColorImage {
+    let step = step.max(1);
+    if step == 1 {
+        return image;
+    }
+    let (w, h) = (image.width as usize, image.height as usize);
+    let (width, height) = every_nth_grid(w, h, step);
+    let data = image.data.chunks_exact(w).step_by(step).flat_map(|row| row.iter().step_by(step).copied()).collect();
+    ColorImage { width: width as u32, height: height as u32, data }
 }
 
 fn encode(width: u32, height: u32, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Result<Vec<u8>> {
@@ -323,5 +431,103 @@ mod tests {
         }
         let err = read_depth_png_every_nth(&plain_color, 2).expect_err("not 16-bit").to_string();
         assert!(err.contains("c.png") && err.contains("16-bit"), "{err}");
+    }
+
+    /// `image` as a JPEG (quality 95, 4:2:0 chroma as cameras write it), baseline or progressive,
+    /// RGB or (`gray`) its luma.
+    fn jpeg(image: &ColorImage, progressive: bool, gray: bool) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut encoder = jpeg_encoder::Encoder::new(&mut out, 95);
+        encoder.set_progressive(progressive);
+        let (w, h) = (image.width as u16, image.height as u16);
+        let encoded = if gray {
+            encoder.encode(&image.to_gray(), w, h, jpeg_encoder::ColorType::Luma)
+        } else {
+            let rgb: Vec<u8> = image.data.iter().flatten().copied().collect();
+            encoder.encode(&rgb, w, h, jpeg_encoder::ColorType::Rgb)
+        };
+        encoded.expect("encode JPEG");
+        out
+    }
+
+    /// A smooth 64 x 48 test card (JPEG keeps it within a few levels).
+    fn card() -> ColorImage {
+        let (w, h) = (64u32, 48u32);
+        let data = (0..w * h)
+            .map(|i| {
+                let (u, v) = (i % w, i / w);
+                [(u * 4) as u8, (v * 5) as u8, (128 + u + v) as u8]
+            })
+            .collect();
+        ColorImage { width: w, height: h, data }
+    }
+
+    fn max_difference(a: &ColorImage, b: &ColorImage) -> u8 {
+        assert_eq!((a.width, a.height), (b.width, b.height));
+        a.data.iter().zip(&b.data).flat_map(|(p, q)| (0..3).map(move |c| p[c].abs_diff(q[c]))).max().unwrap_or(0)
+    }
+
+    #[test]
+    fn baseline_progressive_and_gray_jpegs_read_as_rgb() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let card = card();
+        let gray: Vec<[u8; 3]> = card.to_gray().into_iter().map(|g| [g; 3]).collect();
+        let gray = ColorImage { data: gray, ..card };
+        for (name, progressive, is_gray) in
+            [("b.jpg", false, false), ("p.jpg", true, false), ("g.jpeg", false, true), ("gp.JPG", true, true)]
+        {
+            let path = dir.path().join(name);
+            std::fs::write(&path, jpeg(&card, progressive, is_gray)).expect("write");
+            let got = read_color_image(&path).expect(name);
+            let want = if is_gray { &gray } else { &card };
+            // measured: 3 (baseline), 3 (progressive), 1 (gray) levels at quality 95, 4:2:0
+            let diff = max_difference(&got, want);
+            println!("{name}: {diff} levels off");
+            assert!(diff <= 8, "{name}: {diff} levels off");
+            if is_gray {
+                assert!(got.data.iter().all(|p| p[0] == p[1] && p[1] == p[2]), "{name}: gray expanded to RGB");
+            }
+            for step in [2, 3, 7] {
+                let (thin, full) = read_color_image_every_nth(&path, step).expect("every nth");
+                assert_eq!(full, (64, 48));
+                assert_eq!(thin.data, every_nth(&got.data, 64, step), "{name} step {step}");
+                assert_eq!((thin.width, thin.height), (64u32.div_ceil(step as u32), 48u32.div_ceil(step as u32)));
+            }
+        }
+        // a PNG named .jpg, and a JPEG named .png, are read by what they hold
+        let png_named_jpg = dir.path().join("really_png.jpg");
+        write_color_png(&png_named_jpg, &card).expect("png");
+        assert_eq!(read_color_image(&png_named_jpg).expect("png by signature"), card);
+        let jpg_named_png = dir.path().join("really_jpeg.png");
+        std::fs::write(&jpg_named_png, jpeg(&card, false, false)).expect("write");
+        assert!(max_difference(&read_color_image(&jpg_named_png).expect("jpeg by signature"), &card) <= 8);
+    }
+
+    #[test]
+    fn corrupt_truncated_and_oversized_jpegs_are_refused_naming_the_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let bytes = jpeg(&card(), false, false);
+        let progressive = jpeg(&card(), true, false);
+        let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+            ("truncated.jpg", bytes[..bytes.len() / 2].to_vec(), "not a decodable JPEG"),
+            ("truncated_progressive.jpg", progressive[..progressive.len() / 2].to_vec(), "not a decodable JPEG"),
+            ("header_only.jpg", bytes[..4].to_vec(), "not a decodable JPEG"),
+            ("text.jpg", b"this is not an image".to_vec(), "not a JPEG"),
+            ("empty.jpeg", Vec::new(), "not a JPEG"),
+            ("noise.bin", vec![7; 100], "not a PNG or JPEG"),
+        ];
+        // a 20000 x 20000 frame header: refused before its 1.2 GB are allocated
+        let mut huge = bytes.clone();
+        let sof = huge.windows(2).position(|w| w == [0xFF, 0xC0]).expect("SOF0 marker");
+        huge[sof + 5..sof + 9].copy_from_slice(&[0x4E, 0x20, 0x4E, 0x20]);
+        let mut cases = cases;
+        cases.push(("huge.jpg", huge, "not a decodable JPEG"));
+        for (name, content, want) in cases {
+            let path = dir.path().join(name);
+            std::fs::write(&path, content).expect("write");
+            let err = read_color_image(&path).expect_err(name);
+            let text = err.to_string();
+            assert!(matches!(err, Error::Format { .. }) && text.contains(name) && text.contains(want), "{text}");
+        }
     }
 }

@@ -4,6 +4,7 @@
 //! write a temporary sibling and rename it into place, so a crash never leaves half a file.
 
 pub mod arm;
+pub mod capture;
 pub mod evaluation;
 pub mod handeye;
 pub mod image;

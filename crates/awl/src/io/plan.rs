@@ -6,6 +6,11 @@
 //!   "T_base_model": [[4x4]], "T_base_model_tag": [[4x4]], "T_base_tag": [[4x4]], "T_world_tag": [[4x4]],
 //!   "refinement": { "applied": true, "points": 9000, "fitness": 0.97, "rmse_m": 0.0011,
 //!                   "correction_m": 0.002, "correction_deg": 0.4, "note": "", "T_base_model": [[4x4]] } | null,
+//!   "hand_eye_estimate": { "T_ee_camera": [[4x4]] (used), "T_ee_camera_prior": [[4x4]], "prior": "...",
+//!                          "sigma_deg": [3], "sigma_mm": [3], "T_base_model_sigma_deg": [3], "T_base_model_sigma_mm": [3],
+//!                          "T_base_model_covariance": [[6x6]] (rad², m²; base-frame (ω, v) of T_base_model_true =
+//!                          exp(-(ω, v)) * T_base_model), "views": [ { "view", "fitness", "rmse_m" } ],
+//!                          "residual_scale": 1.0 } | null,
 //!   "detections": [ { "view": 0, "id": 0, "rmse_px": 0.2, "used": true, "reason": "", "T_base_tag": [[4x4]] | null } ],
 //!   "targets": [ { "target": "face-centre@0.2,0.1,0.3", "p_model": [x,y,z], "normal_model": [..],
 //!                  "p_base": [..], "normal_base": [..], "axis_base": [..] (unit, into the surface),
@@ -69,6 +74,21 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
             "note": r.note, "T_base_model": rows_from_isometry(&r.base_from_model),
         })
     });
+    let hand_eye = l.hand_eye.as_ref().map(|h| {
+        let sd = |c: &nalgebra::Matrix6<f64>, k: usize, unit: f64| c[(k, k)].max(0.0).sqrt() * unit;
+        let (cx, cg) = (&h.ee_from_camera_covariance, &h.base_from_model_covariance);
+        json!({
+            "T_ee_camera": rows_from_isometry(&h.ee_from_camera),
+            "T_ee_camera_prior": rows_from_isometry(&h.prior), "prior": h.prior_source,
+            "sigma_deg": (0..3).map(|k| sd(cx, k, 180.0 / std::f64::consts::PI)).collect::<Vec<_>>(),
+            "sigma_mm": (3..6).map(|k| sd(cx, k, 1e3)).collect::<Vec<_>>(),
+            "T_base_model_sigma_deg": (0..3).map(|k| sd(cg, k, 180.0 / std::f64::consts::PI)).collect::<Vec<_>>(),
+            "T_base_model_sigma_mm": (3..6).map(|k| sd(cg, k, 1e3)).collect::<Vec<_>>(),
+            "T_base_model_covariance": (0..6).map(|a| (0..6).map(|b| cg[(a, b)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+            "views": h.views.iter().map(|(i, f, r)| json!({"view": i, "fitness": f, "rmse_m": r})).collect::<Vec<_>>(),
+            "residual_scale": h.residual_scale,
+        })
+    });
     let detections: Vec<Value> = l
         .detections
         .iter()
@@ -110,6 +130,7 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
         "T_world_tag": rows_from_isometry(&plan.world_from_tag),
         "views_checked": l.views_checked,
         "refinement": refinement,
+        "hand_eye_estimate": hand_eye,
         "detections": detections,
         "targets": targets,
         "warnings": plan.warnings,

@@ -14,7 +14,7 @@ use crate::camera::{DepthCamera, Intrinsics, PixelRect, depth_points_in, depth_t
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
-use crate::io::image::{read_color_png_every_nth, read_depth_png_every_nth};
+use crate::io::image::{read_color_image_every_nth, read_depth_png_every_nth};
 use crate::io::{read_bytes, write_atomic};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
 
@@ -36,7 +36,7 @@ pub struct TagSpec {
 /// Where a view's measurements are, relative to the scan folder.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ViewData {
-    /// A 16-bit depth PNG and an optional registered 8-bit color PNG.
+    /// A 16-bit depth PNG and an optional registered 8-bit color image (PNG or JPEG).
     Depth {
         /// Depth image path.
         depth: PathBuf,
@@ -232,7 +232,7 @@ fn token_at(bytes: &[u8], line: usize, column: usize) -> String {
     chars[begin..].iter().take_while(|c| word(c)).collect()
 }
 
-fn positive(path: &Path, field: &str, value: f64) -> Result<f64> {
+pub(crate) fn positive(path: &Path, field: &str, value: f64) -> Result<f64> {
     if value.is_finite() && value > 0.0 {
         Ok(value)
     } else {
@@ -240,16 +240,18 @@ fn positive(path: &Path, field: &str, value: f64) -> Result<f64> {
     }
 }
 
-fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
+/// The intrinsics of a camera block (`prefix` names it in errors, e.g. `camera.`), validated: a
+/// positive size and focal lengths, a finite principal point, up to 5 finite distortion terms.
+pub(crate) fn intrinsics_from_parts(path: &Path, prefix: &str, raw: &RawIntrinsics) -> Result<Intrinsics> {
     if raw.width == 0 || raw.height == 0 {
-        return Err(Error::field(path, "camera.width", "image size must be positive"));
+        return Err(Error::field(path, format!("{prefix}width"), "image size must be positive"));
     }
     let mut distortion = [0.0; 5];
     if let Some(d) = &raw.distortion {
         if d.len() > 5 || d.iter().any(|k| !k.is_finite()) {
             return Err(Error::field(
                 path,
-                "camera.distortion",
+                format!("{prefix}distortion"),
                 "expected up to 5 finite numbers [k1, k2, p1, p2, k3]",
             ));
         }
@@ -258,15 +260,42 @@ fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
     let intrinsics = Intrinsics {
         width: raw.width,
         height: raw.height,
-        fx: positive(path, "camera.fx", raw.fx)?,
-        fy: positive(path, "camera.fy", raw.fy)?,
+        fx: positive(path, &format!("{prefix}fx"), raw.fx)?,
+        fy: positive(path, &format!("{prefix}fy"), raw.fy)?,
         cx: raw.cx,
         cy: raw.cy,
         distortion,
     };
     if !raw.cx.is_finite() || !raw.cy.is_finite() {
-        return Err(Error::field(path, "camera.cx", "principal point must be finite"));
+        return Err(Error::field(path, format!("{prefix}cx"), "principal point must be finite"));
     }
+    Ok(intrinsics)
+}
+
+/// A camera's intrinsics as JSON gives them (`distortion` optional).
+#[derive(Deserialize, Serialize)]
+pub(crate) struct RawIntrinsics {
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) fx: f64,
+    pub(crate) fy: f64,
+    pub(crate) cx: f64,
+    pub(crate) cy: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) distortion: Option<Vec<f64>>,
+}
+
+fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
+    let parts = RawIntrinsics {
+        width: raw.width,
+        height: raw.height,
+        fx: raw.fx,
+        fy: raw.fy,
+        cx: raw.cx,
+        cy: raw.cy,
+        distortion: raw.distortion.clone(),
+    };
+    let intrinsics = intrinsics_from_parts(path, "camera.", &parts)?;
     let depth_min_m = raw.depth_min.unwrap_or(0.0);
     let depth_max_m = raw.depth_max.unwrap_or(f64::INFINITY);
     if !(depth_min_m >= 0.0 && depth_max_m > depth_min_m) {
@@ -407,7 +436,7 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
     write_atomic(&path, text.as_bytes())
 }
 
-fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
+pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: u32) -> Result<()> {
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
     if (width, height) != (w, h) {
         return Err(Error::format(path, format!("image is {width}x{height}, scan.json camera says {w}x{h}")));
@@ -434,10 +463,10 @@ pub(crate) fn read_color(scan: &Scan, camera: &DepthCamera, color: &Path) -> Res
     read_color_every_nth(scan, camera, color, 1)
 }
 
-/// [`read_color`] keeping every `step`-th row and column ([`read_color_png_every_nth`]).
+/// [`read_color`] keeping every `step`-th row and column ([`read_color_image_every_nth`]: PNG or JPEG).
 fn read_color_every_nth(scan: &Scan, camera: &DepthCamera, color: &Path, step: usize) -> Result<ColorImage> {
     let color_path = scan.dir.join(color);
-    let (image, (width, height)) = read_color_png_every_nth(&color_path, step)?;
+    let (image, (width, height)) = read_color_image_every_nth(&color_path, step)?;
     check_size(&color_path, camera, width, height)?;
     Ok(image)
 }

@@ -38,6 +38,8 @@ pub struct TruthView {
     pub base_from_ee: Option<Isometry3<f64>>,
     /// 8-bit PNG labelling each depth pixel (0 none, 1 floor, 2 workpiece, 3 clutter or wall), relative to the scan folder.
     pub label: Option<PathBuf>,
+    /// Every other key of the view (e.g. a capture's `tag_corners_px`), kept as is.
+    pub extra: Map<String, Value>,
 }
 
 /// Ground truth of a simulated or benchmark scan.
@@ -126,6 +128,7 @@ pub fn read_truth(dir_or_file: &Path) -> Result<Truth> {
                     .transpose()?,
                 base_from_ee: v.base_ee.map(|r| pose_field(&path, &format!("views[{i}].T_base_ee"), &r)).transpose()?,
                 label: v.label.clone(),
+                extra: v.extra.clone(),
             })
         })
         .collect::<Result<Vec<_>>>()?;
@@ -176,7 +179,7 @@ pub fn write_truth(dir: &Path, truth: &Truth) -> Result<()> {
                 world_base: v.world_from_base.as_ref().map(rows_from_isometry),
                 base_ee: v.base_from_ee.as_ref().map(rows_from_isometry),
                 label: v.label.clone(),
-                extra: Map::new(),
+                extra: v.extra.clone(),
             })
             .collect(),
         targets: truth

@@ -11,6 +11,8 @@
 //!   "refinement": { "applied": true, "points": 812, "rms_m": 0.0004, "tilt_rad": 0.003, "shift_m": 0.0008,
 //!                   "note": "", "T_world_tag": [[...]] } | null,
 //!   "floor": { "normal": [nx, ny, nz], "offset_m": d } | null,
+//!   "hand_eye": { "T_ee_camera_recorded", "T_ee_camera_refined", "covariance", ... } (absent when
+//!               the scan records no hand-eye; see `pipeline::HandEyeReport`),
 //!   "warnings": [] }
 //! ```
 
@@ -21,6 +23,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::io::scan::{TagSpec, parse_json, pose_field};
 use crate::io::{read_bytes, write_atomic};
+use crate::pipeline::HandEyeReport;
 use crate::transform::{Rows, rows_from_isometry};
 use crate::workpiece::file::{FloorPlane, WORKPIECE_FORMAT, Workpiece};
 use crate::workpiece::refine::Refinement;
@@ -76,6 +79,8 @@ struct RawWorkpiece {
     refinement: Option<RawRefinement>,
     #[serde(default)]
     floor: Option<RawFloor>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    hand_eye: Option<HandEyeReport>,
     #[serde(default)]
     warnings: Vec<String>,
 }
@@ -119,6 +124,7 @@ pub fn write_workpiece(path: &Path, workpiece: &Workpiece) -> Result<()> {
             world_tag: rows_from_isometry(&r.world_from_tag),
         }),
         floor: workpiece.floor.map(|f| RawFloor { normal: f.normal.into(), offset_m: f.offset_m }),
+        hand_eye: workpiece.hand_eye.clone(),
         warnings: workpiece.warnings.clone(),
     };
     let text = serde_json::to_string_pretty(&raw).map_err(|e| Error::invalid("workpiece.json", e.to_string()))?;
@@ -191,6 +197,13 @@ pub fn read_workpiece(path: &Path) -> Result<Workpiece> {
         detections,
         refinement,
         floor,
+        hand_eye: match raw.hand_eye {
+            Some(h) => {
+                h.used().map_err(|e| Error::field(path, "hand_eye", e.to_string()))?;
+                Some(h)
+            }
+            None => None,
+        },
         warnings: raw.warnings,
     })
 }

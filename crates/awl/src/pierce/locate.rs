@@ -13,13 +13,14 @@
 //!    matched enough of the shot and moved the pose by less than the limits; otherwise the tag
 //!    pose is kept and the reason reported.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
-use crate::io::scan::{LoadedView, Scan, TagSpec, load_view};
+use crate::handeye::chain::{ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
+use crate::io::scan::{LoadedView, Scan, TagSpec, ViewPose, load_view};
 use crate::registration::{IcpLevel, IcpParams, register};
 use crate::transform::pose_difference;
 use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views};
@@ -78,12 +79,71 @@ pub struct LocateParams {
     pub tag: TagEstimateParams,
     /// The shot-depth refinement; `None`: the tag pose alone.
     pub refine: Option<ShotRefineParams>,
+    /// Each shot view's noise when the views are combined with the hand-eye.
+    pub noise: ChainNoise,
 }
 
 impl LocateParams {
     /// The default detection and refinement.
     pub fn with_refinement() -> Self {
-        Self { tag: TagEstimateParams::default(), refine: Some(ShotRefineParams::default()) }
+        Self { refine: Some(ShotRefineParams::default()), ..Self::default() }
+    }
+}
+
+/// The hand-eye `awl pierce` starts from, with its uncertainty.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HandEyePrior {
+    /// `T_ee_camera` and its covariance.
+    pub prior: ChainPrior,
+    /// Where it came from, for the report.
+    pub source: String,
+}
+
+impl HandEyePrior {
+    /// The workpiece's hand-eye (`awl fuse`'s refinement, or its recorded one with its prior) when
+    /// the shot records the same `T_ee_camera` as the scan did (within 1 µm / 1 µrad); `None` when
+    /// the workpiece has none or the shot records another (a new calibration since the scan).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when the workpiece's hand-eye matrices are not rigid.
+    pub fn of_workpiece(hand_eye: Option<&crate::pipeline::HandEyeReport>, shot: &Scan) -> Result<Option<Self>> {
+        let (Some(h), Some(recorded)) = (hand_eye, shot.ee_from_camera) else { return Ok(None) };
+        let scan_recorded = crate::transform::isometry_from_rows(&h.recorded)
+            .map_err(|e| Error::invalid("workpiece hand_eye T_ee_camera_recorded", e))?;
+        let (dt, dr) = pose_difference(&scan_recorded, &recorded);
+        if dt > 1e-6 || dr > 1e-6 {
+            return Ok(None);
+        }
+        Self::of_report(h).map(Some)
+    }
+
+    /// The hand-eye `awl fuse` left in a workpiece: the refined one, or the recorded one with its
+    /// prior when it was not refined.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when its matrices are not rigid.
+    pub fn of_report(h: &crate::pipeline::HandEyeReport) -> Result<Self> {
+        let (ee_from_camera, covariance) = h.used()?;
+        let source = if h.refined.is_some() {
+            "workpiece.json hand_eye (refined from the scan)"
+        } else {
+            "workpiece.json hand_eye (recorded; not refined)"
+        };
+        Ok(Self { prior: ChainPrior { ee_from_camera, covariance }, source: source.into() })
+    }
+
+    /// A freshly calibrated `T_ee_camera` (e.g. `--hand-eye FILE`): 0.5 mm / 0.05 deg per axis.
+    pub fn calibrated(ee_from_camera: Isometry3<f64>, source: &str) -> Self {
+        Self { prior: ChainPrior::isotropic(ee_from_camera, 0.0005, 0.05f64.to_radians()), source: source.into() }
+    }
+
+    /// The shot's recorded `T_ee_camera` with the fuse's default prior sigma (2 mm, 0.2 deg per axis).
+    pub fn recorded(ee_from_camera: Isometry3<f64>) -> Self {
+        let c = crate::pipeline::HandEyeConfig::default();
+        Self {
+            prior: ChainPrior::isotropic(ee_from_camera, c.prior_sigma_m, c.prior_sigma_rad),
+            source: "scan.json T_ee_camera (recorded)".into(),
+        }
     }
 }
 
@@ -108,6 +168,28 @@ pub struct ShotRefinement {
     pub note: String,
 }
 
+/// The shot's views registered one by one onto the model and combined with the hand-eye prior
+/// ([`crate::handeye::chain`], one stop whose base is the robot base): `T_base_model` and
+/// `T_ee_camera` at once, with their covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShotHandEye {
+    /// The `T_ee_camera` the plan uses (the prior refined by the shot's views).
+    pub ee_from_camera: Isometry3<f64>,
+    /// Its covariance (right perturbation `(ω, v)` in the camera frame; rad², m²).
+    pub ee_from_camera_covariance: Matrix6<f64>,
+    /// The prior's `T_ee_camera` and where it came from.
+    pub prior: Isometry3<f64>,
+    /// Where the prior came from (`workpiece.json hand_eye`, `scan.json T_ee_camera`, a file).
+    pub prior_source: String,
+    /// Covariance of `T_base_model`'s error: `T_base_model_true = D^-1 * T_base_model`, `D =
+    /// (exp ω, v)` in the base frame (rad², m²).
+    pub base_from_model_covariance: Matrix6<f64>,
+    /// Per registered view: index, ICP fitness, inlier RMSE (m).
+    pub views: Vec<(usize, f64, f64)>,
+    /// `sqrt(chi² / dof)` of the views' residuals against the chain.
+    pub residual_scale: f64,
+}
+
 /// The workpiece located in the base frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Located {
@@ -123,6 +205,9 @@ pub struct Located {
     pub views_checked: Vec<usize>,
     /// Every tag detection in the shot (`world_from_tag` = `T_base_tag` of that view).
     pub detections: Vec<ViewTagDetection>,
+    /// The hand-eye combined with the shot's own views, and the located pose's covariance
+    /// (`None` when the shot's views do not give `T_base_ee`, or none registered onto the model).
+    pub hand_eye: Option<ShotHandEye>,
     /// Things the user should know.
     pub warnings: Vec<String>,
 }
@@ -143,6 +228,7 @@ pub fn locate(
     world_from_tag: &Isometry3<f64>,
     model: &SurfaceModel<'_>,
     params: &LocateParams,
+    prior: Option<&HandEyePrior>,
 ) -> Result<Located> {
     if let Some(declared) = &shot.tag {
         if declared.family != tag.family || declared.id != tag.id || (declared.size_m - tag.size_m).abs() > 1e-6 {
@@ -206,6 +292,16 @@ pub fn locate(
         }
         None => None,
     };
+    let hand_eye = match (&params.refine, shot.ee_from_camera) {
+        (Some(p), Some(recorded)) => {
+            let prior = prior.cloned().unwrap_or_else(|| HandEyePrior::recorded(recorded));
+            combine_views(shot, &loaded, model, &base_from_model, &prior, p, &params.noise, &mut warnings)?
+        }
+        _ => None,
+    };
+    if let Some(h) = &hand_eye {
+        base_from_model = h.base_from_model;
+    }
     Ok(Located {
         base_from_tag,
         base_from_model_tag,
@@ -213,6 +309,7 @@ pub fn locate(
         refinement,
         views_checked: estimate.views_checked,
         detections: estimate.detections,
+        hand_eye: hand_eye.map(|h| h.summary),
         warnings,
     })
 }
@@ -278,4 +375,97 @@ fn refine_with_depth(
         r.applied = true;
     }
     Ok(r)
+}
+
+/// [`ShotHandEye`] and the pose it locates.
+struct Combined {
+    summary: ShotHandEye,
+    base_from_model: Isometry3<f64>,
+}
+
+/// Registers each shot view with depth onto the model (seeded by `base_from_model`, the prior's
+/// hand-eye and the view's `T_base_ee`) and solves the chain of those views with the prior.
+/// `None` (with a warning) when no view gives `T_base_ee` or none registers.
+#[allow(clippy::too_many_arguments)]
+fn combine_views(
+    shot: &Scan,
+    loaded: &[LoadedView],
+    model: &SurfaceModel<'_>,
+    base_from_model: &Isometry3<f64>,
+    prior: &HandEyePrior,
+    params: &ShotRefineParams,
+    noise: &ChainNoise,
+    warnings: &mut Vec<String>,
+) -> Result<Option<Combined>> {
+    let x = prior.prior.ee_from_camera;
+    let mut views = Vec::new();
+    let mut registered = Vec::new();
+    for (i, view) in loaded.iter().enumerate() {
+        let ViewPose::Chain { world_from_base, base_from_ee } = shot.views[i].pose else { continue };
+        // world = the robot base at piercing time: the view's flange in it
+        let base_from_ee = world_from_base * base_from_ee;
+        let seed = base_from_model.inverse() * base_from_ee * x;
+        let points = downsample(&view.cloud_camera, &VoxelParams { voxel_size_m: params.voxel_m })?;
+        let Some(r) = register_onto_model(&points, model, &seed, params)? else { continue };
+        views.push(ChainView {
+            stop: 0,
+            world_from_base: Isometry3::identity(),
+            base_from_ee,
+            model_from_camera: r.model_from_source,
+        });
+        registered.push((i, r.fitness, r.rmse_m));
+    }
+    if views.is_empty() {
+        warnings.push("no shot view registered onto the model on its own: the hand-eye is not combined".into());
+        return Ok(None);
+    }
+    let chain = ChainParams { noise: *noise, stops: StopPrior::Known, max_iterations: 30 };
+    let e = refine_chain(&views, &prior.prior, &chain)?;
+    let g_covariance = Matrix6::from_fn(|a, b| e.joint_covariance[(a + 6, b + 6)]);
+    // G = model_from_base with right perturbation D (base frame): base_from_model = G^-1, whose
+    // error is D^-1 on the left, the covariance's convention
+    let summary = ShotHandEye {
+        ee_from_camera: e.ee_from_camera,
+        ee_from_camera_covariance: e.covariance,
+        prior: x,
+        prior_source: prior.source.clone(),
+        base_from_model_covariance: g_covariance,
+        views: registered,
+        residual_scale: e.residual_scale,
+    };
+    Ok(Some(Combined { summary, base_from_model: e.model_from_world.inverse() }))
+}
+
+/// One source registered onto the model.
+struct OnModel {
+    model_from_source: Isometry3<f64>,
+    fitness: f64,
+    rmse_m: f64,
+}
+
+/// ICP of `points` (source frame) onto the model from `model_from_source`, keeping the points
+/// within `crop_m` of the model there; `None` when too few points remain, the fit is poor or the
+/// correction exceeds the limits.
+fn register_onto_model(
+    points: &PointCloud,
+    model: &SurfaceModel<'_>,
+    model_from_source: &Isometry3<f64>,
+    params: &ShotRefineParams,
+) -> Result<Option<OnModel>> {
+    let crop = (params.crop_m * params.crop_m) as f32;
+    let keep: Vec<usize> = (0..points.len())
+        .filter(|&i| {
+            let q = (model_from_source * points.points[i].cast::<f64>()).cast::<f32>();
+            model.index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
+        })
+        .collect();
+    if keep.len() < params.min_points {
+        return Ok(None);
+    }
+    let icp = register(&points.select(&keep), model.cloud, model_from_source, &params.icp)?;
+    let (dt, dr) = pose_difference(&icp.target_from_source, model_from_source);
+    if icp.fitness < params.min_fitness || dt > params.max_correction_m || dr > params.max_correction_rad {
+        return Ok(None);
+    }
+    Ok(Some(OnModel { model_from_source: icp.target_from_source, fitness: icp.fitness, rmse_m: icp.inlier_rmse_m }))
 }

@@ -10,7 +10,7 @@ pub mod plan;
 pub mod script;
 pub mod tool;
 
-pub use locate::{LocateParams, Located, ShotRefineParams, ShotRefinement, locate};
+pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
 pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

@@ -42,6 +42,9 @@ pub struct PierceParams {
     pub axis: AxisChoice,
     /// Distances along the axis.
     pub stroke: Stroke,
+    /// The hand-eye to start from (`None`: the shot's recorded `T_ee_camera` with the default
+    /// prior sigma).
+    pub hand_eye: Option<crate::pierce::locate::HandEyePrior>,
 }
 
 /// One target of the plan.
@@ -95,7 +98,7 @@ pub fn plan(
     params.stroke.validate()?;
     let placed: Vec<SurfaceTarget> =
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
-    let located = locate(shot, tag, world_from_tag, surface, &params.locate)?;
+    let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
     let mut warnings = located.warnings.clone();
     let base_from_model = located.base_from_model;
     let tag_axis = -((base_from_model * world_from_tag).rotation * Vector3::z());

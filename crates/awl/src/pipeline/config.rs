@@ -1,5 +1,6 @@
 //! `FuseConfig`: every stage's parameters, with documented defaults (TOML/JSON, unknown keys refused).
 
+use super::hand_eye::HandEyeConfig;
 use serde::{Deserialize, Serialize};
 
 use crate::cluster::DbscanParams;
@@ -230,6 +231,8 @@ pub struct FuseConfig {
     pub isolate: IsolateConfig,
     /// MLS smoothing of the model; `None` to skip. Default 6 mm radius, quadratic.
     pub smoothing: Option<MlsParams>,
+    /// The hand-eye refined from the registered base stops (`pipeline::hand_eye`); `None` to skip.
+    pub hand_eye: Option<HandEyeConfig>,
 }
 
 impl Default for FuseConfig {
@@ -248,6 +251,7 @@ impl Default for FuseConfig {
             merge_voxel: VoxelParams::default(),
             isolate: IsolateConfig::default(),
             smoothing: Some(MlsParams::default()),
+            hand_eye: Some(HandEyeConfig::default()),
         }
     }
 }

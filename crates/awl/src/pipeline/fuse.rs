@@ -6,6 +6,7 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use super::config::FuseConfig;
+use super::hand_eye::refine_hand_eye;
 use super::isolate::{drop_floor, keep_object};
 use super::multiview::{Registered, no_usable_view, register_views};
 use super::prepare::{Measured, Preparer, Views, prepare, stage_reports};
@@ -156,6 +157,17 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
             _ => {}
         }
     }
+    let hand_eye = match &config.hand_eye {
+        Some(c) => timed(&mut stages, "hand-eye", 0, || {
+            let report = refine_hand_eye(scan, &registered.poses, c)?;
+            let views = report.as_ref().map_or(0, |r| r.views_used.len());
+            Ok((report, views))
+        })?,
+        None => None,
+    };
+    if let Some(r) = hand_eye.as_ref().filter(|r| !r.refused.is_empty()) {
+        warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
+    }
     progress("merge", 5, STAGES);
     let merge_start = Instant::now();
     let parts = match to_merge {
@@ -198,6 +210,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         joint: registered.joint,
         floor,
         clusters,
+        hand_eye,
         model_points: model.len(),
         warnings,
         seconds: start.elapsed().as_secs_f64(),

@@ -97,6 +97,10 @@ pub struct FuseReport {
     pub floor: Option<FloorReport>,
     /// Clusters found and the one kept.
     pub clusters: Option<ClusterReport>,
+    /// The hand-eye refined from the registered base stops (absent when the scan records none or
+    /// the stage is off).
+    #[serde(default)]
+    pub hand_eye: Option<super::hand_eye::HandEyeReport>,
     /// Points in the final model.
     pub model_points: usize,
     /// Non-fatal events, in order (views skipped or rejected, stages that found nothing).

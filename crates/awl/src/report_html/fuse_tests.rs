@@ -51,6 +51,7 @@ fn report() -> FuseReport {
         joint: Vec::new(),
         floor: None,
         clusters: None,
+        hand_eye: None,
         model_points: 400,
         warnings: vec!["view 2 rejected".into()],
         seconds: 1.5,

@@ -10,10 +10,15 @@
 //! about a random axis. Noise (independent normal per axis): `camera_from_target * dT` with `dT` in
 //! the target frame (so `camera_noise_mm` is the tag position error and `camera_noise_deg` the
 //! orientation error about its centre); `base_from_ee * dT` with `dT` in the flange frame.
+//!
+//! [`CalibrationMotion::OrbitTarget`] draws the same directions and rolls but keeps every camera at
+//! the middle distance, aimed at the tag centre: pure rotations about the target, the capture that
+//! cannot tell a wrong tag size from the camera's offset along its optical axis.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand_chacha::ChaCha8Rng;
 
+use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::handeye::HandEyePose;
 use crate::sim::random::{Stream, normal_perturbation, rng, uniform, unit_vector};
@@ -21,6 +26,18 @@ use crate::sim::simulated_camera;
 
 /// Side of the simulated calibration tag, metres.
 pub const CALIBRATION_TAG_SIZE_M: f64 = 0.08;
+
+/// How the simulated arm moves between the poses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CalibrationMotion {
+    /// Distances spread over `min_distance_m..max_distance_m`, aims within 2 cm of the tag centre
+    /// (module docs). The default.
+    #[default]
+    Spread,
+    /// Every camera at `(min_distance_m + max_distance_m) / 2` from the tag, aimed at its centre:
+    /// pure rotations about the target.
+    OrbitTarget,
+}
 
 /// What to simulate; defaults in [`Default`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,6 +64,8 @@ pub struct CalibrationSimParams {
     /// The true `T_ee_camera`; `None` (default): drawn per seed (module docs). Give
     /// [`crate::sim::rig_ee_from_camera`] to calibrate the camera of the simulated scans and shots.
     pub ee_from_camera: Option<Isometry3<f64>>,
+    /// How the arm moves between the poses. Default [`CalibrationMotion::Spread`].
+    pub motion: CalibrationMotion,
 }
 
 impl Default for CalibrationSimParams {
@@ -62,6 +81,7 @@ impl Default for CalibrationSimParams {
             min_distance_m: 0.3,
             max_distance_m: 0.6,
             ee_from_camera: None,
+            motion: CalibrationMotion::Spread,
         }
     }
 }
@@ -112,30 +132,68 @@ fn true_hand_eye(rng: &mut ChaCha8Rng) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(unit_vector(rng) * angle))
 }
 
-/// True when all tag corners project at least 10 px inside the image of a camera at `base_from_camera`.
-fn tag_in_view(seed: u64, base_from_camera: &Isometry3<f64>, base_from_target: &Isometry3<f64>) -> bool {
-    let intr = simulated_camera(seed).intrinsics;
-    let h = CALIBRATION_TAG_SIZE_M / 2.0;
-    let camera_from_target = base_from_camera.inverse() * base_from_target;
+/// True when the square of half-side `half_m` about the origin of the plane z = 0 of `camera_from_target`
+/// projects in front of the camera with all four corners at least `margin_px` inside the image.
+pub(crate) fn square_in_view(
+    intr: &Intrinsics,
+    camera_from_target: &Isometry3<f64>,
+    half_m: f64,
+    margin_px: f64,
+) -> bool {
+    let h = half_m;
     [(-h, -h), (h, -h), (h, h), (-h, h)].iter().all(|&(x, y)| {
         intr.project(&(camera_from_target * Point3::new(x, y, 0.0))).is_some_and(|px| {
-            px.x >= 10.0
-                && px.y >= 10.0
-                && px.x <= f64::from(intr.width) - 10.0
-                && px.y <= f64::from(intr.height) - 10.0
+            px.x >= margin_px
+                && px.y >= margin_px
+                && px.x <= f64::from(intr.width) - margin_px
+                && px.y <= f64::from(intr.height) - margin_px
         })
     })
 }
 
-fn camera_pose(rng: &mut ChaCha8Rng, p: &CalibrationSimParams, base_from_target: &Isometry3<f64>) -> Isometry3<f64> {
+/// True when all tag corners project at least 10 px inside the image of a camera at `base_from_camera`.
+fn tag_in_view(seed: u64, base_from_camera: &Isometry3<f64>, base_from_target: &Isometry3<f64>) -> bool {
+    let intr = simulated_camera(seed).intrinsics;
+    square_in_view(&intr, &(base_from_camera.inverse() * base_from_target), CALIBRATION_TAG_SIZE_M / 2.0, 10.0)
+}
+
+/// How far and how obliquely the sampled cameras look at the target.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ViewSpread {
+    /// Largest tilt from the target normal and largest roll, degrees.
+    pub spread_deg: f64,
+    /// Nearest camera-to-target distance, metres.
+    pub min_distance_m: f64,
+    /// Farthest camera-to-target distance, metres.
+    pub max_distance_m: f64,
+    /// How the camera moves about the target.
+    pub motion: CalibrationMotion,
+}
+
+/// The fixed target: 0.55 m in front of the base, 5 cm above it, tilted 30 degrees toward it, turned
+/// up to 0.3 rad about its normal.
+pub(crate) fn fixed_target(geo: &mut ChaCha8Rng) -> Isometry3<f64> {
+    let n = Vector3::new(-30f64.to_radians().sin(), 0.0, 30f64.to_radians().cos());
+    let in_plane = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), uniform(geo, -0.3, 0.3));
+    Isometry3::from_parts(Translation3::new(0.55, 0.0, 0.05), frame(&n, &Vector3::y()) * in_plane)
+}
+
+/// A camera pose looking at the target (module docs), `T_base_camera`.
+pub(crate) fn camera_pose(rng: &mut ChaCha8Rng, p: &ViewSpread, base_from_target: &Isometry3<f64>) -> Isometry3<f64> {
     let rot = base_from_target.rotation.to_rotation_matrix();
     let (u, v, n) = (rot * Vector3::x(), rot * Vector3::y(), rot * Vector3::z());
     let spread = p.spread_deg.to_radians();
     let tilt = spread * uniform(rng, 0.0, 1.0).sqrt();
     let azimuth = uniform(rng, 0.0, std::f64::consts::TAU);
     let dir = n * tilt.cos() + (u * azimuth.cos() + v * azimuth.sin()) * tilt.sin();
-    let eye = base_from_target.translation.vector + dir * uniform(rng, p.min_distance_m, p.max_distance_m);
-    let aim = base_from_target.translation.vector + u * uniform(rng, -0.02, 0.02) + v * uniform(rng, -0.02, 0.02);
+    let mut distance = uniform(rng, p.min_distance_m, p.max_distance_m);
+    let mut offset = u * uniform(rng, -0.02, 0.02) + v * uniform(rng, -0.02, 0.02);
+    if p.motion == CalibrationMotion::OrbitTarget {
+        distance = 0.5 * (p.min_distance_m + p.max_distance_m);
+        offset = Vector3::zeros();
+    }
+    let eye = base_from_target.translation.vector + dir * distance;
+    let aim = base_from_target.translation.vector + offset;
     let z = (aim - eye).normalize();
     // image x along the tag's x (image y down = tag y up), then rolled
     let roll = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), uniform(rng, -spread, spread));
@@ -151,14 +209,17 @@ pub fn simulate_calibration(p: &CalibrationSimParams) -> Result<CalibrationCaptu
     let mut geo = rng(p.seed, Stream::HandEye, 1, 0);
     let drawn = true_hand_eye(&mut geo);
     let ee_from_camera = p.ee_from_camera.unwrap_or(drawn);
-    let n = Vector3::new(-30f64.to_radians().sin(), 0.0, 30f64.to_radians().cos());
-    let in_plane = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), uniform(&mut geo, -0.3, 0.3));
-    let base_from_target =
-        Isometry3::from_parts(Translation3::new(0.55, 0.0, 0.05), frame(&n, &Vector3::y()) * in_plane);
+    let base_from_target = fixed_target(&mut geo);
+    let spread = ViewSpread {
+        spread_deg: p.spread_deg,
+        min_distance_m: p.min_distance_m,
+        max_distance_m: p.max_distance_m,
+        motion: p.motion,
+    };
     let mut true_poses = Vec::with_capacity(p.count);
     for i in 0..p.count {
         let base_from_camera = (0..1000)
-            .map(|_| camera_pose(&mut geo, p, &base_from_target))
+            .map(|_| camera_pose(&mut geo, &spread, &base_from_target))
             .find(|pose| tag_in_view(p.seed, pose, &base_from_target))
             .ok_or_else(|| {
                 Error::invalid("calibration simulation", format!("no view of the tag found for pose {i}"))

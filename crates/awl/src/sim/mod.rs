@@ -1,16 +1,18 @@
 //! The rig simulator behind `awl simulate`: renders a scan folder (`awl-scan/1`) of a workpiece on a
 //! floor with clutter and a wall, seen by a RealSense-like camera on a mobile manipulator, with
 //! realistic depth noise and pose errors, plus its ground truth (`truth.json`, `cad.ply`, label
-//! images). Or, in shot mode, the few views the arm takes at piercing time (world = robot base).
+//! images). Or, in shot mode, the few views the arm takes at piercing time (world = robot base). Or
+//! ([`capture`]) a hand-eye calibration capture: views of a tag on a fixed board, world = robot base.
 //!
 //! Everything is deterministic per seed: every purpose and every image row draws from its own
 //! ChaCha8 stream, so the output is bit-identical whatever the number of threads. Only
 //! [`write_simulation`] touches the filesystem.
 
 pub mod calibration;
+pub mod capture;
 mod layout;
 mod noise;
-mod random;
+pub(crate) mod random;
 mod record;
 mod render;
 mod rig;
@@ -187,7 +189,7 @@ pub struct SimView {
     pub labels: LabelImage,
 }
 
-/// A simulated scan (or shot) in memory.
+/// A simulated scan (or shot, or calibration capture) in memory.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Simulation {
     /// The manifest, with the recorded (noisy) poses; `dir` is empty and paths are relative.

@@ -28,6 +28,8 @@ pub(crate) enum Stream {
     DepthGlobal = 8,
     /// Shot placement and arm poses.
     Shot = 9,
+    /// Calibration captures with images: the tag's pose (`a` = 0) and the camera poses (`a` = 1).
+    Capture = 10,
 }
 
 fn splitmix(mut x: u64) -> u64 {

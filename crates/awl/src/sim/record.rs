@@ -162,6 +162,7 @@ fn truth(wp: &Workpiece, params: &SimParams, plan: &Plan, noise: DepthNoise) -> 
             world_from_base: Some(v.world_from_base),
             base_from_ee: Some(v.base_from_ee),
             label: Some(image_path("labels", i)),
+            extra: Map::new(),
         })
         .collect();
     Truth {

@@ -29,7 +29,9 @@ mod depth;
 mod detect;
 mod ippe;
 mod pose;
+mod report;
 
 pub use depth::{DepthScore, DepthScores, MIN_DEPTH_POINTS, score_depth};
 pub use detect::{AprilTagDetector, DetectorParams, GrayView, TagDetection, TagDetector};
 pub use pose::{TagPose, TagPoseSolution, estimate_tag_pose, tag_corners_m};
+pub use report::{PosedTag, detect_and_pose};

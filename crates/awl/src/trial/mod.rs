@@ -156,6 +156,9 @@ pub struct TrialRow {
     pub model_normal_error_rad: f64,
     /// Whether the shot-depth refinement was applied.
     pub refined: bool,
+    /// The hand-eye the plan used (after the shot's views) against the rig's true one: translation
+    /// (m) and rotation (rad); `None` when the shot's views were not combined.
+    pub hand_eye_error: Option<(f64, f64)>,
     /// Angle between the planned axis and the true inward normal at the true surface's point
     /// nearest the planned point (where the tool meets the surface), radians.
     pub axis_error_at_point_rad: f64,
@@ -231,6 +234,10 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         locate_rotation_rad: planned.located.base_from_model.rotation.angle_to(&true_base_from_model.rotation),
         model_normal_error_rad: t.surface.normal.angle(&true_n_model),
         refined: planned.located.refinement.as_ref().is_some_and(|r| r.applied),
+        hand_eye_error: match (&planned.located.hand_eye, sim.truth.ee_from_camera) {
+            (Some(h), Some(truth)) => Some(pose_difference(&h.ee_from_camera, &truth)),
+            _ => None,
+        },
         axis_error_at_point_rad: t.axis_base.angle(&-n_base_at_point),
     })
 }

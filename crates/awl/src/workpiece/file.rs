@@ -52,6 +52,9 @@ pub struct Workpiece {
     /// The floor the workpiece stood on while modeled (model frame), when fusion found one: faces
     /// standing on it end there ([`crate::workpiece::face`]).
     pub floor: Option<FloorPlane>,
+    /// The hand-eye refined from the scan's base stops (`awl fuse`'s `hand_eye`), when the scan
+    /// records one: the prior of `awl pierce`.
+    pub hand_eye: Option<crate::pipeline::HandEyeReport>,
     /// Warnings for the user.
     pub warnings: Vec<String>,
 }
@@ -146,6 +149,7 @@ pub fn workpiece_from_search(
         detections: estimate.detections,
         refinement,
         floor: FloorPlane::of_fuse(out),
+        hand_eye: out.report.hand_eye.clone(),
         warnings,
     }))
 }

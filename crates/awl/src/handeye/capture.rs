@@ -1,0 +1,376 @@
+//! Hand-eye calibration from a capture folder ([`crate::io::capture`]): the tag detected and posed
+//! in every view, its planar ambiguity resolved, then [`calibrate`].
+//!
+//! Per view ([`calibrate_capture`]):
+//! 1. detect the declared tag (tag36h11 only) in the color image; a view where it is missing, too
+//!    small (`min_side_px`), without a pose, or reprojecting worse than `max_rmse_px` is left out,
+//!    with the reason; when no view holds it, the views are searched again with
+//!    [`DetectorParams::thorough`] (a dim tag);
+//! 2. pose it ([`estimate_tag_pose`]: both IPPE solutions). With one solution the view is
+//!    [`FlipChoice::Unambiguous`]. With two, the depth points inside the tag (when the view has a
+//!    depth image and at least [`MIN_DEPTH_POINTS`] of them) choose ([`score_depth`],
+//!    [`FlipChoice::Depth`]);
+//! 3. the remaining two-solution views choose by consistency across views
+//!    ([`FlipChoice::Consistency`]): first without any hand-eye, by the angle invariant of
+//!    `A X = X B` (a relative flange motion `A_ij` and its relative camera motion `B_ij` rotate
+//!    by the same angle), each view taking the solution whose `B_ij` angles best match the `A_ij`
+//!    of the other views (sweeps until nothing changes); then, with a first calibration, each takes
+//!    the solution whose implied `T_base_tag = T_base_ee * T_ee_camera * T_camera_tag` is nearer the
+//!    calibrated one (rotation in radians plus translation in metres / `rotation_weight_m`), and
+//!    the calibration runs again when a choice changed;
+//! 4. the chosen `T_camera_tag` with the view's `T_base_ee` is one [`HandEyePose`].
+
+use nalgebra::{Isometry3, UnitQuaternion};
+use serde::Serialize;
+
+use crate::camera::PixelRect;
+use crate::error::{Error, Result};
+use crate::handeye::{HandEyeParams, HandEyePose, HandEyeResult, PoseResidual, calibrate};
+use crate::io::capture::Capture;
+use crate::tag::{
+    AprilTagDetector, DetectorParams, MIN_DEPTH_POINTS, TagDetector, TagPose, estimate_tag_pose, score_depth,
+};
+use crate::workpiece::tag_pose::SUPPORTED_FAMILY;
+
+/// Settings of [`calibrate_capture`]; every field has a documented default.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct CaptureParams {
+    /// The AprilTag detector's settings. Default: [`DetectorParams::default`].
+    pub detector: DetectorParams,
+    /// A detection whose pose reprojects its corners worse than this is left out, pixels. Default 1.5.
+    pub max_rmse_px: f64,
+    /// A detection whose shortest quad edge is below this is left out, pixels. Default 20.
+    pub min_side_px: f64,
+    /// The solver's settings. Default: [`HandEyeParams::default`].
+    pub handeye: HandEyeParams,
+}
+
+impl Default for CaptureParams {
+    fn default() -> Self {
+        Self {
+            detector: DetectorParams::default(),
+            max_rmse_px: 1.5,
+            min_side_px: 20.0,
+            handeye: HandEyeParams::default(),
+        }
+    }
+}
+
+/// How a view's solution of the planar ambiguity was chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FlipChoice {
+    /// The pose had a single solution.
+    Unambiguous,
+    /// The depth points on the tag fit its plane better.
+    Depth,
+    /// It agrees better with the other views (see the module docs).
+    Consistency,
+}
+
+/// What happened to one view of the capture.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaptureViewReport {
+    /// Index of the view in `scan.json`.
+    pub index: usize,
+    /// Every tag id seen in the view (sorted).
+    pub ids_seen: Vec<u32>,
+    /// True when the declared tag was found and posed usably.
+    pub found: bool,
+    /// Why not, when `found` is false.
+    pub why_not: Option<String>,
+    /// Decision margin of the declared tag's detection (AprilTag's confidence), when seen.
+    pub decision_margin: Option<f64>,
+    /// The solution used: 1 = the lower reprojection error, 2 = the other one.
+    pub solution: Option<u8>,
+    /// How it was chosen.
+    pub chosen_by: Option<FlipChoice>,
+    /// Reprojection RMSE of the solution used, pixels.
+    pub rmse_px: Option<f64>,
+    /// `second.rmse_px / best.rmse_px` of the two solutions (near 1: the corners cannot tell).
+    pub ambiguity: Option<f64>,
+    /// The tag in the camera frame, `T_camera_tag` (awl's tag frame), as used.
+    #[serde(skip)]
+    pub camera_from_tag: Option<Isometry3<f64>>,
+    /// Index of this view's pose in [`CaptureCalibration::poses`] (and the result's residuals).
+    pub pose: Option<usize>,
+    /// This view's residual after calibration (mm, deg, inlier or rejected), when found.
+    pub residual: Option<PoseResidual>,
+}
+
+/// What [`calibrate_capture`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureCalibration {
+    /// One report per view of the capture, in its order.
+    pub views: Vec<CaptureViewReport>,
+    /// The poses handed to the solver (the views where the tag was found, in order).
+    pub poses: Vec<HandEyePose>,
+    /// The solver's result (its residuals index [`CaptureCalibration::poses`]).
+    pub result: HandEyeResult,
+    /// True when the detector's thorough settings (a second search) found the tag.
+    pub thorough_search: bool,
+}
+
+/// A view where the tag was found: its pose, and the other solution while the choice is open.
+struct Seen {
+    view: usize,
+    pose: TagPose,
+    /// Using `pose.second` (solution 2).
+    use_second: bool,
+    /// Still to be chosen by consistency.
+    open: bool,
+}
+
+impl Seen {
+    fn chosen(&self) -> Isometry3<f64> {
+        match (self.use_second, self.pose.second) {
+            (true, Some(s)) => s.camera_from_tag,
+            _ => self.pose.best.camera_from_tag,
+        }
+    }
+    fn candidate(&self, second: bool) -> Isometry3<f64> {
+        match (second, self.pose.second) {
+            (true, Some(s)) => s.camera_from_tag,
+            _ => self.pose.best.camera_from_tag,
+        }
+    }
+}
+
+fn shortest_side_px(c: &[[f64; 2]; 4]) -> f64 {
+    (0..4).map(|i| (c[i][0] - c[(i + 1) % 4][0]).hypot(c[i][1] - c[(i + 1) % 4][1])).fold(f64::INFINITY, f64::min)
+}
+
+/// Detects and poses the declared tag in every view with `detector_params` (see the module docs,
+/// steps 1-2): the reports and the views where it was found.
+fn search(
+    capture: &Capture,
+    params: &CaptureParams,
+    detector_params: &DetectorParams,
+) -> Result<(Vec<CaptureViewReport>, Vec<Seen>)> {
+    let mut detector = AprilTagDetector::new(detector_params)?;
+    let (k, tag) = (&capture.intrinsics, &capture.tag);
+    let (mut reports, mut seen) = (Vec::new(), Vec::new());
+    for index in 0..capture.views.len() {
+        let image = capture.read_color(index)?;
+        let found = detector.detect_color(&image)?;
+        drop(image);
+        let mut ids_seen: Vec<u32> = found.iter().map(|d| d.id).collect();
+        ids_seen.sort_unstable();
+        let mut report = CaptureViewReport {
+            index,
+            ids_seen,
+            found: false,
+            why_not: None,
+            decision_margin: None,
+            solution: None,
+            chosen_by: None,
+            rmse_px: None,
+            ambiguity: None,
+            camera_from_tag: None,
+            pose: None,
+            residual: None,
+        };
+        // the declared tag: the most confident detection of its id
+        let best =
+            found.iter().filter(|d| d.id == tag.id).max_by(|a, b| a.decision_margin.total_cmp(&b.decision_margin));
+        let Some(d) = best else {
+            report.why_not = Some(if report.ids_seen.is_empty() {
+                "no tag seen".into()
+            } else {
+                format!("tag id {} not seen (saw ids {:?})", tag.id, report.ids_seen)
+            });
+            reports.push(report);
+            continue;
+        };
+        report.decision_margin = Some(d.decision_margin);
+        let side = shortest_side_px(&d.corners_px);
+        if side < params.min_side_px {
+            report.why_not = Some(format!("tag too small in the image ({side:.1} px < {} px)", params.min_side_px));
+            reports.push(report);
+            continue;
+        }
+        let pose = match estimate_tag_pose(&d.corners_px, k, tag.size_m) {
+            Ok(pose) => pose,
+            Err(e) => {
+                report.why_not = Some(format!("no pose: {e}"));
+                reports.push(report);
+                continue;
+            }
+        };
+        report.ambiguity = pose.ambiguity();
+        if pose.best.rmse_px > params.max_rmse_px {
+            report.why_not = Some(format!("reprojection RMSE {:.2} px > {} px", pose.best.rmse_px, params.max_rmse_px));
+            reports.push(report);
+            continue;
+        }
+        let (mut use_second, mut open) = (false, false);
+        if pose.second.is_none() {
+            report.chosen_by = Some(FlipChoice::Unambiguous);
+        } else {
+            let rect = PixelRect::around(&d.corners_px, 2.0, k.width, k.height);
+            let points = capture.read_depth_points(index, &rect)?.unwrap_or_default();
+            let scores = score_depth(&pose, &d.corners_px, k, &points);
+            if scores.best.points >= MIN_DEPTH_POINTS {
+                use_second = scores.prefers_second();
+                report.chosen_by = Some(FlipChoice::Depth);
+            } else {
+                open = true;
+                report.chosen_by = Some(FlipChoice::Consistency);
+            }
+        }
+        report.found = true;
+        seen.push(Seen { view: index, pose, use_second, open });
+        reports.push(report);
+    }
+    Ok((reports, seen))
+}
+
+/// Step 3's first part: the open views choose by the rotation-angle invariant of `A X = X B`.
+fn choose_by_angles(capture: &Capture, seen: &mut [Seen]) {
+    let flange: Vec<UnitQuaternion<f64>> = seen.iter().map(|s| capture.views[s.view].base_from_ee.rotation).collect();
+    for _sweep in 0..10 {
+        let mut changed = false;
+        for i in 0..seen.len() {
+            if !seen[i].open {
+                continue;
+            }
+            let cost = |second: bool| -> f64 {
+                let c_i = seen[i].candidate(second).rotation;
+                (0..seen.len())
+                    .filter(|&j| j != i)
+                    .map(|j| {
+                        let a = (flange[i].inverse() * flange[j]).angle();
+                        let b = (c_i * seen[j].chosen().rotation.inverse()).angle();
+                        (a - b).abs()
+                    })
+                    .sum()
+            };
+            let second = cost(true) < cost(false);
+            if second != seen[i].use_second {
+                seen[i].use_second = second;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+}
+
+/// Step 3's second part: each open view takes the solution whose implied `T_base_tag` is nearer
+/// `base_from_target`; true when a choice changed.
+fn choose_by_target(capture: &Capture, seen: &mut [Seen], result: &HandEyeResult, weight_m: f64) -> bool {
+    let mut changed = false;
+    for s in seen.iter_mut().filter(|s| s.open) {
+        let base_from_ee = capture.views[s.view].base_from_ee;
+        let distance = |second: bool| {
+            let implied = base_from_ee * result.ee_from_camera * s.candidate(second);
+            let delta = result.base_from_target.inverse() * implied;
+            delta.rotation.angle() + delta.translation.vector.norm() / weight_m
+        };
+        let second = distance(true) < distance(false);
+        if second != s.use_second {
+            s.use_second = second;
+            changed = true;
+        }
+    }
+    changed
+}
+
+fn poses_of(capture: &Capture, seen: &[Seen]) -> Vec<HandEyePose> {
+    seen.iter()
+        .map(|s| HandEyePose { base_from_ee: capture.views[s.view].base_from_ee, camera_from_target: s.chosen() })
+        .collect()
+}
+
+/// `view 0: no tag seen; view 3: ...` for the views where the tag was not found.
+fn what_each_saw(reports: &[CaptureViewReport]) -> String {
+    reports
+        .iter()
+        .map(|r| match &r.why_not {
+            Some(why) => format!("view {}: {why}", r.index),
+            None => format!("view {}: found", r.index),
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+/// Calibrates `T_ee_camera` from a capture (see the module docs).
+///
+/// # Errors
+/// [`Error::Field`] naming `scan.json`'s `tag.family` for a family other than tag36h11, its `tag`
+/// when no view holds the tag (what each view saw listed), its `views` when fewer than 3 views do
+/// (listed) or the solver refuses the motions (degenerate: pure translations, one rotation axis;
+/// the views named); any error of reading a view's images (naming the file: a JPEG that does not
+/// decode among them); [`Error::Invalid`] for bad parameters.
+pub fn calibrate_capture(capture: &Capture, params: &CaptureParams) -> Result<CaptureCalibration> {
+    let manifest = capture.manifest_path();
+    let tag = &capture.tag;
+    if tag.family != SUPPORTED_FAMILY {
+        return Err(Error::field(
+            &manifest,
+            "tag.family",
+            format!("\"{}\" is not supported (only {SUPPORTED_FAMILY})", tag.family),
+        ));
+    }
+    let (mut reports, mut seen) = search(capture, params, &params.detector)?;
+    let mut thorough_search = false;
+    if seen.is_empty()
+        && let Some(thorough) = params.detector.thorough()
+    {
+        let (r, s) = search(capture, params, &thorough)?;
+        thorough_search = !s.is_empty();
+        if thorough_search {
+            (reports, seen) = (r, s);
+        }
+    }
+    let name = format!("{} id {} ({} m)", tag.family, tag.id, tag.size_m);
+    if seen.is_empty() {
+        return Err(Error::field(
+            &manifest,
+            "tag",
+            format!("{name} was not found in any of the {} views: {}", capture.views.len(), what_each_saw(&reports)),
+        ));
+    }
+    if seen.len() < 3 {
+        let views: Vec<usize> = seen.iter().map(|s| s.view).collect();
+        return Err(Error::field(
+            &manifest,
+            "views",
+            format!(
+                "{name} was found in only {} of {} views ({views:?}); hand-eye calibration needs at least 3: {}",
+                seen.len(),
+                capture.views.len(),
+                what_each_saw(&reports)
+            ),
+        ));
+    }
+    choose_by_angles(capture, &mut seen);
+    let views: Vec<usize> = seen.iter().map(|s| s.view).collect();
+    let solve = |seen: &[Seen]| {
+        calibrate(&poses_of(capture, seen), &params.handeye).map_err(|e| {
+            Error::field(
+                &manifest,
+                "views",
+                format!("calibration from the views {views:?} (poses[k] is the k-th of them) failed: {e}"),
+            )
+        })
+    };
+    let mut result = solve(&seen)?;
+    for _ in 0..3 {
+        if !choose_by_target(capture, &mut seen, &result, params.handeye.rotation_weight_m) {
+            break;
+        }
+        result = solve(&seen)?;
+    }
+    for (k, s) in seen.iter().enumerate() {
+        let report = &mut reports[s.view];
+        report.solution = Some(if s.use_second && s.pose.second.is_some() { 2 } else { 1 });
+        let used = if s.use_second { s.pose.second.unwrap_or(s.pose.best) } else { s.pose.best };
+        report.rmse_px = Some(used.rmse_px);
+        report.camera_from_tag = Some(s.chosen());
+        report.pose = Some(k);
+        report.residual = result.residuals.get(k).copied();
+    }
+    Ok(CaptureCalibration { views: reports, poses: poses_of(capture, &seen), result, thorough_search })
+}

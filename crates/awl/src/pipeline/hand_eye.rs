@@ -1,0 +1,269 @@
+//! The hand-eye refined from the registered scan (a fuse stage after registration): every base stop
+//! with two or more registered views gives `A X = X B` (registered camera motion, recorded flange
+//! motion), solved with the recorded `T_ee_camera` as a prior by [`crate::handeye::chain`].
+//!
+//! It changes nothing of the model: the model frame stays the one the anchor view's recorded pose
+//! puts it in (`T_world_base * T_base_ee * T_ee_camera` with the recorded hand-eye), and so do the
+//! view poses and `T_world_tag`; the refined hand-eye and its covariance go into report.json and
+//! workpiece.json for `awl pierce`, which places the camera on the flange with it.
+
+use nalgebra::{Isometry3, Matrix6, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::handeye::chain::{ChainEstimate, ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
+use crate::io::scan::{Scan, ViewPose};
+use crate::transform::{Rows, rows_from_isometry};
+
+/// Settings of the hand-eye refinement.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HandEyeConfig {
+    /// 1-sigma per axis of the recorded `T_ee_camera`'s translation error, metres. Default 0.002:
+    /// a typical calibration is 2-4 mm off in all (issue 54's measurements).
+    pub prior_sigma_m: f64,
+    /// ... of its rotation error, radians. Default 0.2 deg (0.23-0.27 deg in all).
+    pub prior_sigma_rad: f64,
+    /// Each view's noise: the arm's pose error at the flange (default 0.7 mm, 0.07 deg per axis)
+    /// and the registered camera pose's (default 0.3 mm, 0.02 deg).
+    pub noise: ChainNoise,
+    /// 1-sigma per axis of each stop's SLAM base pose error (roll, pitch, yaw in radians; x, y, z in
+    /// metres, base frame); `None`: each stop's base pose is free. Default 0.25, 0.25, 2 deg and
+    /// 3, 3, 0.5 cm: a base on a level floor errs mostly in x, y and yaw.
+    pub stop_sigma: Option<[f64; 6]>,
+    /// Within-stop pairs turning less than this do not count as a rotation, radians. Default 5 deg.
+    pub min_turn_rad: f64,
+    /// Refuse to refine when the rotating pairs' axes span less than this, radians (parallel
+    /// axes leave the translation along them unobserved). Default 5 deg.
+    pub min_axis_angle_rad: f64,
+}
+
+impl Default for HandEyeConfig {
+    fn default() -> Self {
+        let deg = std::f64::consts::PI / 180.0;
+        Self {
+            prior_sigma_m: 0.002,
+            prior_sigma_rad: 0.2 * deg,
+            noise: ChainNoise::default(),
+            stop_sigma: Some([0.25 * deg, 0.25 * deg, 2.0 * deg, 0.03, 0.03, 0.005]),
+            min_turn_rad: 5.0 * deg,
+            min_axis_angle_rad: 5.0 * deg,
+        }
+    }
+}
+
+/// What the refinement did (`report.json` `hand_eye`, `workpiece.json` `hand_eye`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HandEyeReport {
+    /// The recorded `T_ee_camera` (scan.json).
+    #[serde(rename = "T_ee_camera_recorded")]
+    pub recorded: Rows,
+    /// The refined one; absent when refused.
+    #[serde(rename = "T_ee_camera_refined")]
+    pub refined: Option<Rows>,
+    /// Why it was not refined (empty when refined).
+    pub refused: String,
+    /// The correction from the recorded to the refined: translation, millimetres.
+    pub correction_mm: f64,
+    /// ... rotation, degrees.
+    pub correction_deg: f64,
+    /// 1-sigma of the hand-eye used (the refined one, else the recorded one's prior) per camera axis:
+    /// rotation about x, y, z (degrees).
+    pub sigma_deg: [f64; 3],
+    /// ... translation along x, y, z (millimetres).
+    pub sigma_mm: [f64; 3],
+    /// Covariance of the hand-eye used: its right perturbation `(ω, v)` in the camera frame, rad²
+    /// and m² (row-major 6x6).
+    pub covariance: [[f64; 6]; 6],
+    /// 1-sigma the data alone give per camera axis (rotation degrees, then translation millimetres);
+    /// `null` where the motions do not constrain it.
+    pub data_sigma: [Option<f64>; 6],
+    /// The least observed rotation axis (camera frame) and its data-alone 1-sigma, degrees.
+    pub weakest_rotation: ([f64; 3], Option<f64>),
+    /// The least observed translation direction (camera frame) and its data-alone 1-sigma, mm.
+    pub weakest_translation: ([f64; 3], Option<f64>),
+    /// The base stops used (`base_stop` values, or the index of the first view of a group of
+    /// views with identical `T_world_base`).
+    pub stops_used: Vec<usize>,
+    /// The views used.
+    pub views_used: Vec<usize>,
+    /// Within-stop view pairs that turn more than `min_turn_rad`.
+    pub rotating_pairs: usize,
+    /// The angle their rotation axes span (see `handeye::MotionDiversity`), degrees.
+    pub axis_angle_deg: f64,
+    /// `sqrt(chi² / dof)` of the views' residuals (1 when the noise model fits; the covariance is
+    /// scaled up by it when larger).
+    pub residual_scale: f64,
+    /// RMS of the views' flange-frame residuals, millimetres.
+    pub rms_mm: f64,
+    /// ... degrees.
+    pub rms_deg: f64,
+}
+
+impl HandEyeReport {
+    /// The hand-eye to use and its covariance: the refined one, else the recorded one.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when a stored matrix is not rigid.
+    pub fn used(&self) -> Result<(Isometry3<f64>, Matrix6<f64>)> {
+        let rows = self.refined.as_ref().unwrap_or(&self.recorded);
+        let pose = crate::transform::isometry_from_rows(rows).map_err(|e| Error::invalid("hand_eye", e))?;
+        Ok((pose, Matrix6::from_fn(|a, b| self.covariance[a][b])))
+    }
+}
+
+/// Each view's base stop: its `base_stop` key, else the first view whose recorded `T_world_base`
+/// is identical; `None` for views that give `T_world_camera`.
+pub fn base_stops(scan: &Scan) -> Vec<Option<usize>> {
+    let bases: Vec<Option<Isometry3<f64>>> = (scan.views.iter())
+        .map(|v| match v.pose {
+            ViewPose::Chain { world_from_base, .. } => Some(world_from_base),
+            ViewPose::Camera { .. } => None,
+        })
+        .collect();
+    (scan.views.iter().enumerate())
+        .map(|(i, v)| {
+            bases[i]?;
+            if let Some(stop) = v.extra.get("base_stop").and_then(serde_json::Value::as_u64) {
+                return Some(stop as usize);
+            }
+            bases.iter().position(|b| *b == bases[i])
+        })
+        .collect()
+}
+
+fn finite_or_none(v: f64) -> Option<f64> {
+    (v.is_finite() && v < 1e6).then_some(v)
+}
+
+fn report_of(
+    recorded: &Isometry3<f64>,
+    estimate: Option<&ChainEstimate>,
+    prior: &ChainPrior,
+    refused: String,
+) -> HandEyeReport {
+    let covariance = estimate.map_or(prior.covariance, |e| e.covariance);
+    let used = estimate.map_or(*recorded, |e| e.ee_from_camera);
+    let (dt, dr) = crate::transform::pose_difference(recorded, &used);
+    let sigma = |k: usize| covariance[(k, k)].max(0.0).sqrt();
+    let direction = |v: &Vector3<f64>| [v.x, v.y, v.z];
+    let none = ([0.0; 3], None);
+    HandEyeReport {
+        recorded: rows_from_isometry(recorded),
+        refined: estimate.map(|e| rows_from_isometry(&e.ee_from_camera)),
+        refused,
+        correction_mm: dt * 1e3,
+        correction_deg: dr.to_degrees(),
+        sigma_deg: std::array::from_fn(|k| sigma(k).to_degrees()),
+        sigma_mm: std::array::from_fn(|k| sigma(k + 3) * 1e3),
+        covariance: std::array::from_fn(|a| std::array::from_fn(|b| covariance[(a, b)])),
+        data_sigma: std::array::from_fn(|k| {
+            let s = estimate.map_or(f64::INFINITY, |e| e.data_sigma[k]);
+            finite_or_none(if k < 3 { s.to_degrees() } else { s * 1e3 })
+        }),
+        weakest_rotation: estimate
+            .map_or(none, |e| (direction(&e.weakest_rotation.0), finite_or_none(e.weakest_rotation.1.to_degrees()))),
+        weakest_translation: estimate
+            .map_or(none, |e| (direction(&e.weakest_translation.0), finite_or_none(e.weakest_translation.1 * 1e3))),
+        stops_used: Vec::new(),
+        views_used: Vec::new(),
+        rotating_pairs: 0,
+        axis_angle_deg: 0.0,
+        residual_scale: estimate.map_or(0.0, |e| e.residual_scale),
+        rms_mm: estimate.map_or(0.0, |e| e.rms_m * 1e3),
+        rms_deg: estimate.map_or(0.0, |e| e.rms_rad.to_degrees()),
+    }
+}
+
+/// The rotating within-stop pairs and the angle their flange rotation axes span (radians).
+fn within_stop_diversity(views: &[ChainView], min_turn_rad: f64) -> (usize, f64) {
+    let mut scatter = nalgebra::Matrix3::zeros();
+    let mut rotating = 0;
+    for (i, a) in views.iter().enumerate() {
+        for b in views[i + 1..].iter().filter(|b| b.stop == a.stop) {
+            let turn = (a.base_from_ee.inverse() * b.base_from_ee).rotation;
+            if turn.angle() > min_turn_rad
+                && let Some(axis) = turn.axis()
+            {
+                scatter += axis.into_inner() * axis.into_inner().transpose();
+                rotating += 1;
+            }
+        }
+    }
+    if rotating == 0 {
+        return (0, 0.0);
+    }
+    let mut l: Vec<f64> =
+        nalgebra::SymmetricEigen::new(scatter / rotating as f64).eigenvalues.iter().copied().collect();
+    l.sort_by(f64::total_cmp);
+    (rotating, 2.0 * l[1].clamp(0.0, 1.0).sqrt().asin())
+}
+
+/// Refines the scan's recorded hand-eye from the registered `poses` (`T_world_camera` per view,
+/// `None`: left out). `None` when the scan records no hand-eye (its views give `T_world_camera`).
+///
+/// # Errors
+/// [`Error::Invalid`] for a setting that is not a positive number.
+pub fn refine_hand_eye(
+    scan: &Scan,
+    poses: &[Option<Isometry3<f64>>],
+    config: &HandEyeConfig,
+) -> Result<Option<HandEyeReport>> {
+    let Some(recorded) = scan.ee_from_camera else { return Ok(None) };
+    for (name, v) in
+        [("hand_eye.prior_sigma_m", config.prior_sigma_m), ("hand_eye.prior_sigma_rad", config.prior_sigma_rad)]
+    {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Error::invalid(name, format!("{v} is not a positive number")));
+        }
+    }
+    let prior = ChainPrior::isotropic(recorded, config.prior_sigma_m, config.prior_sigma_rad);
+    let stops = base_stops(scan);
+    let mut views: Vec<(usize, ChainView)> = Vec::new();
+    for (i, (spec, pose)) in scan.views.iter().zip(poses).enumerate() {
+        if let (ViewPose::Chain { world_from_base, base_from_ee }, Some(pose), Some(stop)) = (spec.pose, pose, stops[i])
+        {
+            views.push((i, ChainView { stop, world_from_base, base_from_ee, model_from_camera: *pose }));
+        }
+    }
+    // stops with two or more registered views
+    let counts: Vec<usize> =
+        views.iter().map(|(_, a)| views.iter().filter(|(_, b)| b.stop == a.stop).count()).collect();
+    let mut kept = counts.iter().map(|&c| c >= 2);
+    views.retain(|_| kept.next().unwrap_or(false));
+    let mut stops_used: Vec<usize> = views.iter().map(|(_, v)| v.stop).collect();
+    stops_used.sort_unstable();
+    stops_used.dedup();
+    let chain: Vec<ChainView> = views.iter().map(|(_, v)| *v).collect();
+    let (rotating, axis_angle) = within_stop_diversity(&chain, config.min_turn_rad);
+    let refused = if stops_used.len() < 2 {
+        format!(
+            "fewer than two usable stops: {} base stop(s) hold two or more registered views (views of one stop \
+             share `base_stop` or an identical T_world_base)",
+            stops_used.len()
+        )
+    } else if rotating < 2 || axis_angle < config.min_axis_angle_rad {
+        format!(
+            "parallel rotation axes: {rotating} within-stop view pairs turn more than {:.1} deg and their axes span \
+             {:.2} deg (need {:.1} deg): turn the flange about different axes at the stops",
+            config.min_turn_rad.to_degrees(),
+            axis_angle.to_degrees(),
+            config.min_axis_angle_rad.to_degrees()
+        )
+    } else {
+        String::new()
+    };
+    let estimate = if refused.is_empty() {
+        let stops_prior = config.stop_sigma.map_or(StopPrior::Free, StopPrior::Sigma);
+        let params = ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30 };
+        Some(refine_chain(&chain, &prior, &params)?)
+    } else {
+        None
+    };
+    let mut report = report_of(&recorded, estimate.as_ref(), &prior, refused);
+    report.stops_used = stops_used;
+    report.views_used = views.iter().map(|(i, _)| *i).collect();
+    report.rotating_pairs = rotating;
+    report.axis_angle_deg = axis_angle.to_degrees();
+    Ok(Some(report))
+}
