@@ -14,6 +14,7 @@ pub mod filter;
 pub mod handeye;
 pub mod image;
 pub mod io;
+pub mod kinematics;
 pub mod mesh;
 pub mod normals;
 pub mod octahedral;

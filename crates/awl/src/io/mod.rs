@@ -3,6 +3,7 @@
 //! Every error names the file (and the field, for structured files). Writers are atomic: they
 //! write a temporary sibling and rename it into place, so a crash never leaves half a file.
 
+pub mod arm;
 pub mod capture;
 pub mod evaluation;
 pub mod handeye;
