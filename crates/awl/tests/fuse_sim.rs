@@ -10,7 +10,7 @@ mod common;
 use std::sync::OnceLock;
 
 use awl::io::scan::{Scan, read_scan};
-use awl::pierce::{LocateParams, PierceParams};
+use awl::pierce::{HandEyePrior, LocateParams, PierceParams};
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::sim::{SceneKind, ShotPose, SimParams, Simulation, simulate, write_simulation};
 use awl::trial::{ShotSetup, TrialSummary, TrialWorkpiece, calibrate_rig, format_table, prepare_workpiece, run_shot};
@@ -221,7 +221,12 @@ fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
         seed: 1,
         camera_seed: 1,
         ee_from_camera: hand_eye.ee_from_camera,
-        params: PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() },
+        // a fresh calibration, as `awl trial --calibrate` and `awl pierce --hand-eye` take it
+        params: PierceParams {
+            locate: LocateParams::with_refinement(),
+            hand_eye: Some(HandEyePrior::calibrated(hand_eye.ee_from_camera, "calibrate_rig")),
+            ..PierceParams::default()
+        },
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let rows: Vec<_> = (1..=n)

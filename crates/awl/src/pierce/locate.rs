@@ -377,6 +377,9 @@ fn refine_with_depth(
     Ok(r)
 }
 
+/// Views whose residuals exceed the noise model this many times (`sqrt(chi² / dof)`) are not combined.
+const MAX_RESIDUAL_SCALE: f64 = 3.0;
+
 /// [`ShotHandEye`] and the pose it locates.
 struct Combined {
     summary: ShotHandEye,
@@ -398,6 +401,14 @@ fn combine_views(
     warnings: &mut Vec<String>,
 ) -> Result<Option<Combined>> {
     let x = prior.prior.ee_from_camera;
+    // a view's own registration may move it from where the merged shot put it by what the prior's
+    // hand-eye error explains (3 sigma, the rotation's at 0.6 m) and a little more; a view that moves
+    // farther slid on its own and is left out
+    let c = &prior.prior.covariance;
+    let sigma_rad = (0..3).map(|k| c[(k, k)]).fold(0.0, f64::max).sqrt();
+    let sigma_m = (3..6).map(|k| c[(k, k)]).fold(0.0, f64::max).sqrt();
+    let gate_rad = 3.0 * sigma_rad + 0.1f64.to_radians();
+    let gate_m = 3.0 * sigma_m + 0.6 * gate_rad + 0.001;
     let mut views = Vec::new();
     let mut registered = Vec::new();
     for (i, view) in loaded.iter().enumerate() {
@@ -407,6 +418,18 @@ fn combine_views(
         let seed = base_from_model.inverse() * base_from_ee * x;
         let points = downsample(&view.cloud_camera, &VoxelParams { voxel_size_m: params.voxel_m })?;
         let Some(r) = register_onto_model(&points, model, &seed, params)? else { continue };
+        let (dt, dr) = pose_difference(&r.model_from_source, &seed);
+        if dt > gate_m || dr > gate_rad {
+            warnings.push(format!(
+                "shot view {i}: its own registration moved it {:.1} mm / {:.2} deg from the merged shot's fit \
+                 (more than the hand-eye's {:.1} mm / {:.2} deg explain): left out of the hand-eye combination",
+                dt * 1e3,
+                dr.to_degrees(),
+                gate_m * 1e3,
+                gate_rad.to_degrees()
+            ));
+            continue;
+        }
         views.push(ChainView {
             stop: 0,
             world_from_base: Isometry3::identity(),
@@ -421,6 +444,14 @@ fn combine_views(
     }
     let chain = ChainParams { noise: *noise, stops: StopPrior::Known, max_iterations: 30 };
     let e = refine_chain(&views, &prior.prior, &chain)?;
+    if e.residual_scale > MAX_RESIDUAL_SCALE {
+        warnings.push(format!(
+            "the shot's views disagree with the hand-eye and the arm's poses ({:.1} times the noise model): the \
+             merged shot's fit is used",
+            e.residual_scale
+        ));
+        return Ok(None);
+    }
     let g_covariance = Matrix6::from_fn(|a, b| e.joint_covariance[(a + 6, b + 6)]);
     // G = model_from_base with right perturbation D (base frame): base_from_model = G^-1, whose
     // error is D^-1 on the left, the covariance's convention
