@@ -83,9 +83,15 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
+        Err(e) => match e.downcast_ref::<cmd::common::NoGo>() {
+            Some(no_go) => {
+                eprintln!("no-go: {no_go}");
+                std::process::ExitCode::from(cmd::common::NoGo::EXIT_CODE)
+            }
+            None => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
     }
 }

@@ -4,7 +4,7 @@
 //! transform is named `a_from_b`. Parsing rejects matrices that are not rigid, so the rest of the
 //! library can trust every isometry it holds.
 
-use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Largest deviation from a rigid matrix accepted when parsing (orthonormality, determinant, last row).
 pub const RIGID_TOLERANCE: f64 = 1e-6;
@@ -117,4 +117,20 @@ mod tests {
         let (dt, dr) = pose_difference(&iso, &parsed);
         assert!(dt < 1e-8 && dr < 1e-7, "dt {dt} dr {dr}");
     }
+}
+
+/// The cross-product matrix `[v]x` (`[v]x w = v x w`).
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The adjoint of `a_from_b` for `(ω, v)` perturbations (rotation first):
+/// `a_from_b * exp(ξ) * b_from_a = exp(Ad ξ)`, so a covariance `C` in frame b is `Ad C Adᵀ` in a.
+pub fn adjoint(a_from_b: &Isometry3<f64>) -> Matrix6<f64> {
+    let r = a_from_b.rotation.to_rotation_matrix().into_inner();
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(3, 0).copy_from(&(skew(&a_from_b.translation.vector) * r));
+    ad
 }

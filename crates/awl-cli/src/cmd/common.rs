@@ -70,3 +70,32 @@ pub fn prepare_output(dir: &Path, force: bool, subfolders: &[&str]) -> anyhow::R
     }
     Ok(())
 }
+
+/// `awl pierce` planned, but refused some targets (exit code [`NoGo::EXIT_CODE`]).
+#[derive(Debug)]
+pub struct NoGo {
+    /// Targets refused.
+    pub refused: usize,
+    /// Targets planned.
+    pub targets: usize,
+}
+
+impl NoGo {
+    /// The process exit code: the plan was written, and these targets are left out of the programs.
+    pub const EXIT_CODE: u8 = 3;
+}
+
+impl std::fmt::Display for NoGo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} of {} target(s) are no-go (their predicted error exceeds the tolerance): they are left out of the \
+             robot programs; plan.json says why (exit code {})",
+            self.refused,
+            self.targets,
+            Self::EXIT_CODE
+        )
+    }
+}
+
+impl std::error::Error for NoGo {}

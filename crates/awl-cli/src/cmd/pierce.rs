@@ -10,13 +10,13 @@ use awl::io::plan::{PlanSources, plan_json, write_plan};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
 use awl::pierce::{
-    AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, plan, techman_packets,
-    urscript,
+    AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, Tolerance, plan,
+    techman_packets, urscript,
 };
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
 
-use super::common::refuse_overwriting_inputs;
+use super::common::{NoGo, refuse_overwriting_inputs};
 
 /// The piercing direction on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -67,6 +67,13 @@ pub struct PierceArgs {
     /// T_ee_camera from this JSON file (e.g. `awl calibrate hand-eye -o`) instead of the shot's scan.json.
     #[arg(long)]
     pub hand_eye: Option<PathBuf>,
+    /// Refuse (go: false, left out of the programs) a target whose predicted 95 % position error
+    /// exceeds this, millimetres; the command then exits with code 3.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_mm: Option<f64>,
+    /// Refuse a target whose predicted 95 % tool-axis error exceeds this, degrees (exit code 3).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_deg: Option<f64>,
     /// Use the tag pose only: do not refine it by registering the shot's depth to the model.
     #[arg(long)]
     pub no_refine: bool,
@@ -129,8 +136,13 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         },
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
         hand_eye: prior,
+        tolerance: Tolerance {
+            position_m: args.tolerance_mm.map(|t| t * 1e-3),
+            axis_rad: args.tolerance_deg.map(f64::to_radians),
+        },
         ..PierceParams::default()
     };
+    params.tolerance.validate()?;
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
     let plan = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
     let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
@@ -150,6 +162,10 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&plan_json(&plan, &sources))?);
     } else if !args.quiet {
         print_summary(&plan, args);
+    }
+    let refused = plan.targets.iter().filter(|t| !t.go()).count();
+    if refused > 0 {
+        return Err(NoGo { refused, targets: plan.targets.len() }.into());
     }
     Ok(())
 }
@@ -175,9 +191,20 @@ fn print_summary(plan: &PiercePlan, args: &PierceArgs) {
             .surface
             .angle_to_tag_z_rad
             .map_or(String::new(), |x| format!(", normal vs tag z {:.2} deg", x.to_degrees()));
+        let b = &t.prediction;
         println!(
-            "target {}: p_base ({:.4}, {:.4}, {:.4}) m, axis ({:.3}, {:.3}, {:.3}){angle}",
-            t.surface.spec, p.x, p.y, p.z, a.x, a.y, a.z
+            "target {}: p_base ({:.4}, {:.4}, {:.4}) m, axis ({:.3}, {:.3}, {:.3}){angle}; predicted error <= {:.2} mm, \
+             axis <= {:.2} deg (95 %): {}",
+            t.surface.spec,
+            p.x,
+            p.y,
+            p.z,
+            a.x,
+            a.y,
+            a.z,
+            b.position_bound_m * 1e3,
+            b.axis_bound_rad.to_degrees(),
+            t.refusal.as_ref().map_or("go".to_string(), |why| format!("NO GO: {why}"))
         );
     }
     for w in &plan.warnings {

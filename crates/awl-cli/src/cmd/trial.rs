@@ -72,7 +72,22 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "axis_error_at_point_deg": r.axis_error_at_point_rad.to_degrees(),
         "hand_eye_error_m": r.hand_eye_error.map(|e| e.0),
         "hand_eye_error_deg": r.hand_eye_error.map(|e| e.1.to_degrees()),
+        "predicted_error_mm": finite(r.prediction.position_bound_m * 1e3),
+        "predicted_axis_error_deg": finite(r.prediction.axis_bound_rad.to_degrees()),
+        "position_covariance_m2": rows3(&r.prediction.position_covariance),
+        "axis_covariance_rad2": rows3(&r.prediction.axis_covariance),
+        "located_position_covariance_m2": rows3(&r.located_position_covariance),
+        "normal_base": [r.normal_base.x, r.normal_base.y, r.normal_base.z],
+        "face_centre": r.face_centre,
     })
+}
+
+fn finite(v: f64) -> serde_json::Value {
+    if v.is_finite() { json!(v) } else { serde_json::Value::Null }
+}
+
+fn rows3(m: &nalgebra::Matrix3<f64>) -> Vec<Vec<serde_json::Value>> {
+    (0..3).map(|a| (0..3).map(|b| finite(m[(a, b)])).collect()).collect()
 }
 
 /// Runs `awl trial`.
@@ -203,7 +218,9 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
                          "max_model_normal_error_deg": s.max_model_normal_error_rad.to_degrees(),
                          "mean_axis_error_at_point_deg": s.mean_axis_error_at_point_rad.to_degrees(),
                          "max_axis_error_at_point_deg": s.max_axis_error_at_point_rad.to_degrees(),
-                         "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined },
+                         "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined,
+                         "within_bound": s.within_bound, "axis_within_bound": s.axis_within_bound,
+                         "median_bound_m": s.median_bound_m, "median_m": s.median_m },
             "rows": rows.iter().map(row_json).collect::<Vec<_>>(),
         }),
     )?;

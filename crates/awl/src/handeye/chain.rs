@@ -434,7 +434,7 @@ pub fn point_covariance(
     // world_from_model_true = D^-1 * world_from_model, D = (exp ω, v): p_world ≈ q - ω x q - v
     let q = model_from_world.inverse() * p_model;
     let mut j = nalgebra::Matrix3x6::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&crate::handeye::motion::skew(&q.coords));
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&crate::transform::skew(&q.coords));
     j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-Matrix3::identity()));
     j * g_covariance * j.transpose()
 }

@@ -29,10 +29,7 @@ pub(crate) fn all_pairs(poses: &[HandEyePose]) -> Vec<Motion> {
     motions
 }
 
-/// The cross-product matrix `[v]x` (`[v]x w = v x w`).
-pub(crate) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
+pub(crate) use crate::transform::skew;
 
 /// The least-squares translation shared by Park-Martin and Tsai-Lenz: `(R_A - I) t = R_X t_B - t_A`
 /// over all motions, solved by SVD of the stacked system.

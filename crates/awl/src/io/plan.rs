@@ -11,12 +11,17 @@
 //!                          "T_base_model_covariance": [[6x6]] (rad², m²; base-frame (ω, v) of T_base_model_true =
 //!                          exp(-(ω, v)) * T_base_model), "views": [ { "view", "fitness", "rmse_m" } ],
 //!                          "residual_scale": 1.0 } | null,
+//!   "T_base_model_covariance": [[6x6]] (as hand_eye_estimate's; entries null when unbounded),
+//!   "covariance_source": "...", "confidence": 0.95, "tolerance_mm": 2.0 | null, "tolerance_deg": 1.0 | null,
 //!   "detections": [ { "view": 0, "id": 0, "rmse_px": 0.2, "used": true, "reason": "", "T_base_tag": [[4x4]] | null } ],
 //!   "targets": [ { "target": "face-centre@0.2,0.1,0.3", "p_model": [x,y,z], "normal_model": [..],
 //!                  "p_base": [..], "normal_base": [..], "axis_base": [..] (unit, into the surface),
 //!                  "angle_normal_tag_deg": 0.8, "fit_rms_m": 0.0003, "fit_points": 812,
 //!                  "corners_model": [[x,y,z] x4] | null,
-//!                  "approach": POSE, "pierce": POSE, "retract": POSE } ],
+//!                  "approach": POSE, "pierce": POSE, "retract": POSE,
+//!                  "predicted_error_mm": 1.4 (95 % bound on the point's error; null: unbounded),
+//!                  "predicted_axis_error_deg": 0.5 (95 % bound on the tool axis' error),
+//!                  "go": true, "why": null | "the predicted position error 3.1 mm exceeds the tolerance 2.0 mm" } ],
 //!   "warnings": [] }
 //! ```
 //! `POSE` = `{ "T": [[4x4]], "xyz": [x,y,z], "quaternion_xyzw": [x,y,z,w], "ur_axis_angle": [x,y,z,rx,ry,rz] }`,
@@ -52,6 +57,11 @@ fn xyz(p: &Point3<f64>) -> [f64; 3] {
 
 fn vec3(v: &Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
+}
+
+/// A number, or null when it is not finite (JSON has no infinity).
+fn finite(v: f64) -> Value {
+    if v.is_finite() { json!(v) } else { Value::Null }
 }
 
 fn pose(t: &Isometry3<f64>) -> Value {
@@ -114,6 +124,9 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
                 "fit_rms_m": s.fit_rms_m, "fit_points": s.points,
                 "corners_model": s.corners.map(|c| c.map(|p| xyz(&p))),
                 "approach": pose(&t.poses.approach), "pierce": pose(&t.poses.pierce), "retract": pose(&t.poses.retract),
+                "predicted_error_mm": finite(t.prediction.position_bound_m * 1e3),
+                "predicted_axis_error_deg": finite(t.prediction.axis_bound_rad.to_degrees()),
+                "go": t.go(), "why": t.refusal,
             })
         })
         .collect();
@@ -129,6 +142,11 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
         "T_base_tag": rows_from_isometry(&l.base_from_tag),
         "T_world_tag": rows_from_isometry(&plan.world_from_tag),
         "views_checked": l.views_checked,
+        "T_base_model_covariance": (0..6).map(|a| (0..6).map(|b| finite(l.base_from_model_covariance[(a, b)])).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "covariance_source": l.covariance_source,
+        "confidence": plan.confidence,
+        "tolerance_mm": plan.tolerance.position_m.map(|t| t * 1e3),
+        "tolerance_deg": plan.tolerance.axis_rad.map(f64::to_degrees),
         "refinement": refinement,
         "hand_eye_estimate": hand_eye,
         "detections": detections,

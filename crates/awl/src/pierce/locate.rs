@@ -13,7 +13,7 @@
 //!    matched enough of the shot and moved the pose by less than the limits; otherwise the tag
 //!    pose is kept and the reason reported.
 
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector6};
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
@@ -22,7 +22,7 @@ use crate::filter::voxel::{VoxelParams, downsample};
 use crate::handeye::chain::{ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
 use crate::io::scan::{LoadedView, Scan, TagSpec, ViewPose, load_view};
 use crate::registration::{IcpLevel, IcpParams, register};
-use crate::transform::pose_difference;
+use crate::transform::{adjoint, pose_difference, skew};
 use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views};
 
 /// Parameters of the shot-depth refinement.
@@ -72,7 +72,7 @@ impl Default for ShotRefineParams {
 }
 
 /// Parameters of [`locate`].
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LocateParams {
     /// Tag detection and the robust mean over the shot's views.
@@ -81,6 +81,15 @@ pub struct LocateParams {
     pub refine: Option<ShotRefineParams>,
     /// Each shot view's noise when the views are combined with the hand-eye.
     pub noise: ChainNoise,
+    /// A detected tag corner's noise, 1-sigma per image axis, pixels (the tag pose's covariance
+    /// when the model is placed by the tag alone). Default 0.3.
+    pub tag_corner_px: f64,
+}
+
+impl Default for LocateParams {
+    fn default() -> Self {
+        Self { tag: TagEstimateParams::default(), refine: None, noise: ChainNoise::default(), tag_corner_px: 0.3 }
+    }
 }
 
 impl LocateParams {
@@ -208,6 +217,13 @@ pub struct Located {
     /// The hand-eye combined with the shot's own views, and the located pose's covariance
     /// (`None` when the shot's views do not give `T_base_ee`, or none registered onto the model).
     pub hand_eye: Option<ShotHandEye>,
+    /// Covariance of `base_from_model`'s error: `T_base_model_true = exp(-(ω, v)) * T_base_model`,
+    /// `(ω, v)` in the base frame (rad², m²). From the hand-eye combination when it was made, else
+    /// the hand-eye's prior carried through the shot's views with the arm's noise and that of the
+    /// fit used (the shot-depth registration's, or each tag detection's from its corners).
+    pub base_from_model_covariance: Matrix6<f64>,
+    /// Which of those [`Located::base_from_model_covariance`] is.
+    pub covariance_source: String,
     /// Things the user should know.
     pub warnings: Vec<String>,
 }
@@ -241,6 +257,21 @@ pub fn locate(
             ));
         }
     }
+    // every view is placed with the hand-eye the plan starts from
+    let recorded = shot.ee_from_camera;
+    let prior = match (prior, recorded) {
+        (Some(p), _) => Some(p.clone()),
+        (None, Some(x)) => Some(HandEyePrior::recorded(x)),
+        (None, None) => None,
+    };
+    let placed;
+    let shot = match &prior {
+        Some(p) if recorded != Some(p.prior.ee_from_camera) => {
+            placed = Scan { ee_from_camera: Some(p.prior.ee_from_camera), ..shot.clone() };
+            &placed
+        }
+        _ => shot,
+    };
     // every view is decoded once: its color for the tag, its points for the refinement
     let rays = shot.camera.as_ref().map(|c| c.intrinsics.ray_table());
     let loaded: Vec<LoadedView> =
@@ -292,16 +323,53 @@ pub fn locate(
         }
         None => None,
     };
-    let hand_eye = match (&params.refine, shot.ee_from_camera) {
-        (Some(p), Some(recorded)) => {
-            let prior = prior.cloned().unwrap_or_else(|| HandEyePrior::recorded(recorded));
-            combine_views(shot, &loaded, model, &base_from_model, &prior, p, &params.noise, &mut warnings)?
+    let hand_eye = match (&params.refine, &prior) {
+        (Some(p), Some(prior)) => {
+            combine_views(shot, &loaded, model, &base_from_model, prior, p, &params.noise, &mut warnings)?
         }
         _ => None,
     };
-    if let Some(h) = &hand_eye {
-        base_from_model = h.base_from_model;
-    }
+    let depth_applied = refinement.as_ref().is_some_and(|r| r.applied);
+    let (base_from_model_covariance, covariance_source) = match &hand_eye {
+        Some(h) => {
+            base_from_model = h.base_from_model;
+            (h.summary.base_from_model_covariance, "the shot's views combined with the hand-eye".to_string())
+        }
+        None => {
+            let tag_px = params.tag_corner_px;
+            let fits: Vec<(Isometry3<f64>, Matrix6<f64>)> = if depth_applied {
+                let c = registration_covariance(&params.noise);
+                loaded.iter().map(|l| (l.world_from_camera, c)).collect()
+            } else {
+                estimate
+                    .detections
+                    .iter()
+                    .filter(|d| d.used)
+                    .filter_map(|d| {
+                        let l = loaded.get(d.view)?;
+                        let camera_from_tag = l.world_from_camera.inverse() * d.world_from_tag?;
+                        Some((
+                            l.world_from_camera,
+                            tag_covariance(&camera.intrinsics, tag.size_m, &camera_from_tag, tag_px),
+                        ))
+                    })
+                    .collect()
+            };
+            let flanges: Vec<Option<Isometry3<f64>>> = (0..shot.views.len())
+                .map(|i| match shot.views[i].pose {
+                    ViewPose::Chain { world_from_base, base_from_ee } => Some(world_from_base * base_from_ee),
+                    ViewPose::Camera { .. } => None,
+                })
+                .collect();
+            let c = transported_covariance(&fits, &flanges, &loaded, prior.as_ref(), &params.noise);
+            let source = if depth_applied {
+                "the hand-eye's prior and the shot-depth registration"
+            } else {
+                "the hand-eye's prior and the tag's corners"
+            };
+            (c, source.to_string())
+        }
+    };
     Ok(Located {
         base_from_tag,
         base_from_model_tag,
@@ -310,8 +378,92 @@ pub fn locate(
         views_checked: estimate.views_checked,
         detections: estimate.detections,
         hand_eye: hand_eye.map(|h| h.summary),
+        base_from_model_covariance,
+        covariance_source,
         warnings,
     })
+}
+
+/// A registered camera pose's error covariance ([`ChainNoise`]'s camera terms; rad², m²).
+fn registration_covariance(noise: &ChainNoise) -> Matrix6<f64> {
+    let (r, t) = (noise.camera_rad.powi(2), noise.camera_m.powi(2));
+    Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
+}
+
+/// The covariance of a tag's pose from its four corners: `camera_from_tag_true = exp((ω, v)) *
+/// camera_from_tag`, `(ω, v)` in the camera frame (rad², m²). Each corner has `corner_px` of noise
+/// per image axis where the tag faces the camera, growing as `sqrt(L / l)` where its shorter edge
+/// shrinks from `L` (facing) to `l` pixels (a line fitted to fewer pixels): a tag seen at a
+/// grazing angle is less certain, and so is one seen face on (its tilt moves the corners little).
+fn tag_covariance(
+    intrinsics: &crate::camera::Intrinsics,
+    size_m: f64,
+    camera_from_tag: &Isometry3<f64>,
+    corner_px: f64,
+) -> Matrix6<f64> {
+    let h = size_m / 2.0;
+    let corners = [(-h, -h), (h, -h), (h, h), (-h, h)].map(|(x, y)| camera_from_tag * nalgebra::Point3::new(x, y, 0.0));
+    if corners.iter().any(|p| p.z <= 1e-6) {
+        return Matrix6::from_diagonal_element(f64::INFINITY);
+    }
+    let pixel =
+        |p: &nalgebra::Point3<f64>| nalgebra::Vector2::new(intrinsics.fx * p.x / p.z, intrinsics.fy * p.y / p.z);
+    let facing_px = intrinsics.fx.min(intrinsics.fy) * size_m / camera_from_tag.translation.vector.norm();
+    let mut info = Matrix6::zeros();
+    for (k, p) in corners.iter().enumerate() {
+        let edge = |other: usize| (pixel(p) - pixel(&corners[other])).norm();
+        let shortest_px = edge((k + 1) % 4).min(edge((k + 3) % 4)).max(1e-6);
+        let sigma_px = corner_px.max(1e-3) * (facing_px / shortest_px).max(1.0).sqrt();
+        let proj = nalgebra::Matrix2x3::new(
+            intrinsics.fx / p.z,
+            0.0,
+            -intrinsics.fx * p.x / (p.z * p.z),
+            0.0,
+            intrinsics.fy / p.z,
+            -intrinsics.fy * p.y / (p.z * p.z),
+        );
+        let mut dp = nalgebra::Matrix3x6::zeros();
+        dp.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(&p.coords)));
+        dp.fixed_view_mut::<3, 3>(0, 3).copy_from(&Matrix3::identity());
+        let j = proj * dp;
+        info += j.transpose() * j / (sigma_px * sigma_px);
+    }
+    info.try_inverse().unwrap_or_else(|| Matrix6::from_diagonal_element(f64::INFINITY))
+}
+
+/// `T_base_model`'s covariance (base frame, `(ω, v)`) from `fits`: per view that placed the model,
+/// its `T_base_camera` and its fit's covariance (camera frame). The hand-eye's error is common to
+/// the views; the arm's and the fit's are averaged over them.
+fn transported_covariance(
+    fits: &[(Isometry3<f64>, Matrix6<f64>)],
+    flanges: &[Option<Isometry3<f64>>],
+    loaded: &[LoadedView],
+    prior: Option<&HandEyePrior>,
+    noise: &ChainNoise,
+) -> Matrix6<f64> {
+    if fits.is_empty() {
+        return Matrix6::from_diagonal_element(f64::INFINITY);
+    }
+    let n = fits.len() as f64;
+    let (ar, at) = (noise.arm_rad.powi(2), noise.arm_m.powi(2));
+    let arm = Matrix6::from_diagonal(&Vector6::new(ar, ar, ar, at, at, at));
+    let mut mean_ad = Matrix6::zeros();
+    let mut averaged = Matrix6::zeros();
+    for (base_from_camera, fit) in fits {
+        let ad = adjoint(base_from_camera);
+        mean_ad += ad / n;
+        averaged += ad * fit * ad.transpose() / (n * n);
+        // the arm's error at the view's flange (at the camera when the view has no flange)
+        let flange = loaded
+            .iter()
+            .position(|l| l.world_from_camera == *base_from_camera)
+            .and_then(|i| flanges.get(i).copied().flatten())
+            .unwrap_or(*base_from_camera);
+        let af = adjoint(&flange);
+        averaged += af * arm * af.transpose() / (n * n);
+    }
+    let common = prior.map_or(Matrix6::zeros(), |p| mean_ad * p.prior.covariance * mean_ad.transpose());
+    common + averaged
 }
 
 /// The shot's points (base frame), merged and voxelised.
@@ -499,4 +651,69 @@ fn register_onto_model(
         return Ok(None);
     }
     Ok(Some(OnModel { model_from_source: icp.target_from_source, fitness: icp.fitness, rmse_m: icp.inlier_rmse_m }))
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::camera::Intrinsics;
+
+    fn camera() -> Intrinsics {
+        Intrinsics { width: 640, height: 480, fx: 600.0, fy: 600.0, cx: 320.0, cy: 240.0, distortion: [0.0; 5] }
+    }
+
+    /// The 95 % bound on the error of a point 25 cm across the tag from its centre (the tag's pose
+    /// error alone), metres, the tag `distance_m` away and turned `tilt_deg` from facing the camera.
+    fn bound_m(distance_m: f64, tilt_deg: f64) -> f64 {
+        let camera_from_tag = Isometry3::from_parts(
+            Translation3::new(0.02, -0.01, distance_m),
+            UnitQuaternion::from_scaled_axis(Vector3::y() * tilt_deg.to_radians()),
+        );
+        let c = tag_covariance(&camera(), 0.08, &camera_from_tag, 0.3);
+        let p = camera_from_tag * nalgebra::Point3::new(0.25, 0.0, 0.0);
+        let mut j = nalgebra::Matrix3x6::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(&p.coords)));
+        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&Matrix3::identity());
+        crate::pierce::predict::norm_quantile(&(j * c * j.transpose()), 0.95)
+    }
+
+    #[test]
+    fn a_tag_seen_at_a_grazing_angle_or_far_away_is_less_certain() {
+        let b: Vec<f64> = [0.0, 30.0, 60.0, 75.0, 80.0].iter().map(|t| bound_m(0.4, *t)).collect();
+        println!("bounds at 0, 30, 60, 75, 80 deg: {:?} mm", b.iter().map(|v| v * 1e3).collect::<Vec<_>>());
+        // face on, the tilt is weakly seen; beyond 60 deg, the shrinking edges' corners
+        // measured 11.0, 5.0, 3.7, 4.1, 4.5 mm
+        assert!(b[0] > 2.0 * b[2] && b[4] > 1.15 * b[2] && b[4] > b[3] && b[3] > b[2], "{b:?}");
+        assert!(bound_m(0.8, 30.0) > 2.0 * bound_m(0.4, 30.0));
+        // behind the camera: unbounded
+        let behind = Isometry3::translation(0.0, 0.0, -0.4);
+        assert!(tag_covariance(&camera(), 0.08, &behind, 0.3)[(0, 0)].is_infinite());
+    }
+
+    #[test]
+    fn the_adjoint_carries_a_perturbation_between_frames() {
+        let a_from_b = Isometry3::from_parts(
+            Translation3::new(0.3, -0.2, 0.5),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.4, -0.1, 0.9)),
+        );
+        let xi = Vector6::new(0.001, -0.002, 0.0015, 0.0003, 0.0001, -0.0002);
+        let exp = |x: &Vector6<f64>| {
+            crate::transform::isometry_from_translation_rotvec(
+                Vector3::new(x[3], x[4], x[5]),
+                Vector3::new(x[0], x[1], x[2]),
+            )
+        };
+        let moved = a_from_b * exp(&xi) * a_from_b.inverse();
+        let carried = exp(&(adjoint(&a_from_b) * xi));
+        // first order: the difference is of the order of |xi|^2 (1e-6), where leaving out the
+        // translation's lever arm errs by |t| |ω| (1e-3)
+        let (dt, dr) = pose_difference(&moved, &carried);
+        assert!(dt < 3e-6 && dr < 1e-9, "{dt} {dr}");
+        let mut rotation_only = adjoint(&a_from_b);
+        rotation_only.fixed_view_mut::<3, 3>(3, 0).fill(0.0);
+        let (naive, _) = pose_difference(&moved, &exp(&(rotation_only * xi)));
+        assert!(naive > 5e-4, "{naive}");
+    }
 }

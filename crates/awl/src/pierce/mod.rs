@@ -1,16 +1,18 @@
 //! Piercing: the workpiece located in the robot base frame from a piercing-time shot ([`locate`]),
-//! targets on the model turned into tool poses there ([`plan`], [`tool`]) and robot programs
-//! ([`script`]); plan.json I/O in [`crate::io::plan`].
+//! targets on the model turned into tool poses there ([`plan`], [`tool`]), each with the error it
+//! may have and whether the tool may go ([`predict`]), and robot programs ([`script`]); plan.json I/O in [`crate::io::plan`].
 //!
 //! Frames: `base` = the robot base (the shot's world frame); `model` = the fused model's frame (the
 //! scan's world frame), where `workpiece.json` gives `T_world_tag`; tool z = the piercing direction.
 
 pub mod locate;
 pub mod plan;
+pub mod predict;
 pub mod script;
 pub mod tool;
 
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
+pub use predict::{PredictParams, Prediction, Tolerance};
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
 pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

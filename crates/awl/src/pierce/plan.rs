@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::io::scan::{Scan, TagSpec};
 use crate::pierce::locate::{LocateParams, Located, locate};
+use crate::pierce::predict::{PredictParams, Prediction, TargetGeometry, Tolerance, predict};
 use crate::pierce::tool::{Stroke, ToolPoses, tool_poses};
 use crate::workpiece::{SurfaceModel, SurfaceTarget, TargetParams, TargetSpec};
 
@@ -45,6 +46,10 @@ pub struct PierceParams {
     /// The hand-eye to start from (`None`: the shot's recorded `T_ee_camera` with the default
     /// prior sigma).
     pub hand_eye: Option<crate::pierce::locate::HandEyePrior>,
+    /// The model's share of each target's predicted error.
+    pub predict: PredictParams,
+    /// The most a target may be off for the tool to go.
+    pub tolerance: Tolerance,
 }
 
 /// One target of the plan.
@@ -60,6 +65,18 @@ pub struct PlannedTarget {
     pub axis_base: Vector3<f64>,
     /// The tool poses, base frame.
     pub poses: ToolPoses,
+    /// How far off the point and the axis may be.
+    pub prediction: Prediction,
+    /// Why the tool must not go to this target (`None`: it may); no-go targets are left out of
+    /// the robot programs.
+    pub refusal: Option<String>,
+}
+
+impl PlannedTarget {
+    /// Whether the tool may go to this target.
+    pub fn go(&self) -> bool {
+        self.refusal.is_none()
+    }
 }
 
 /// A piercing plan.
@@ -77,6 +94,10 @@ pub struct PiercePlan {
     pub targets: Vec<PlannedTarget>,
     /// Things the user should know (from locating and placing).
     pub warnings: Vec<String>,
+    /// The tolerance the targets were judged by.
+    pub tolerance: Tolerance,
+    /// The probability of the predicted bounds.
+    pub confidence: f64,
 }
 
 /// Places `specs` on the model `surface` (failing before any image is read when one is off the
@@ -96,6 +117,8 @@ pub fn plan(
         return Err(Error::invalid("targets", "no target given"));
     }
     params.stroke.validate()?;
+    params.predict.validate()?;
+    params.tolerance.validate()?;
     let placed: Vec<SurfaceTarget> =
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
     let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
@@ -121,7 +144,15 @@ pub fn plan(
                 ));
             }
             let poses = tool_poses(&p_base, &axis_base, &params.stroke)?;
-            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses })
+            let geometry = TargetGeometry {
+                p_model: surface.point,
+                normal_model: surface.normal,
+                axis_base,
+                face_centre: surface.corners.is_some(),
+            };
+            let prediction = predict(&base_from_model, &located.base_from_model_covariance, &geometry, &params.predict);
+            let refusal = params.tolerance.refusal(&prediction);
+            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses, prediction, refusal })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(PiercePlan {
@@ -131,5 +162,7 @@ pub fn plan(
         stroke: params.stroke,
         targets,
         warnings,
+        tolerance: params.tolerance,
+        confidence: params.predict.confidence,
     })
 }

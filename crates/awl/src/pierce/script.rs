@@ -2,7 +2,8 @@
 //!
 //! Poses are the tool centre point in the robot base frame: set the controller's TCP to the tip of
 //! the piercing tool before running. Per target: a linear move to approach, a slow one to pierce,
-//! and back out to retract (URScript `movel`; Techman `Line("CAP", ...)`).
+//! and back out to retract (URScript `movel`; Techman `Line("CAP", ...)`). A no-go target
+//! ([`crate::pierce::PlannedTarget::refusal`]) is left out.
 
 use std::fmt::Write as _;
 
@@ -43,11 +44,16 @@ fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
 pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "# awl pierce: {} target(s) from {source}", plan.targets.len());
+    let go = plan.targets.iter().filter(|t| t.go()).count();
+    let _ = writeln!(s, "# awl pierce: {go} of {} target(s) from {source}", plan.targets.len());
     let _ =
         writeln!(s, "# TCP = the tip of the piercing tool; poses in the robot base frame (metres, rotation vectors)");
     let _ = writeln!(s, "def awl_pierce():");
     for (i, t) in plan.targets.iter().enumerate() {
+        if let Some(why) = &t.refusal {
+            let _ = writeln!(s, "  # target {i}: {} left out: {why}", t.surface.spec);
+            continue;
+        }
         let p = t.p_base;
         let _ = writeln!(s, "  # target {i}: {} -> p_base ({:.4}, {:.4}, {:.4}) m", t.surface.spec, p.x, p.y, p.z);
         for (pose, v) in strokes(&t.poses, speeds) {
@@ -87,7 +93,7 @@ fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
 /// each after the previous one's reply.
 pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
     let mut out = String::new();
-    for (i, t) in plan.targets.iter().enumerate() {
+    for (i, t) in plan.targets.iter().enumerate().filter(|(_, t)| t.go()) {
         let moves = strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2));
         let script = format!("ChangeBase(\"RobotBase\")\r\n{}", moves.join("\r\n"));
         out.push_str(&tmsct_packet(&format!("awl{i}"), &script));

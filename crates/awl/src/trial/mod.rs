@@ -162,6 +162,15 @@ pub struct TrialRow {
     /// Angle between the planned axis and the true inward normal at the true surface's point
     /// nearest the planned point (where the tool meets the surface), radians.
     pub axis_error_at_point_rad: f64,
+    /// The plan's predicted 95 % bounds (and their covariances) for this target.
+    pub prediction: crate::pierce::Prediction,
+    /// The share of the located pose in the predicted position covariance, base frame, m² (the
+    /// rest is the model's): for calibrating the prediction.
+    pub located_position_covariance: nalgebra::Matrix3<f64>,
+    /// The model's outward normal at the target, base frame (unit).
+    pub normal_base: Vector3<f64>,
+    /// Whether the target is a face centre.
+    pub face_centre: bool,
 }
 
 impl TrialRow {
@@ -239,5 +248,13 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
             _ => None,
         },
         axis_error_at_point_rad: t.axis_base.angle(&-n_base_at_point),
+        prediction: t.prediction,
+        located_position_covariance: crate::handeye::chain::point_covariance(
+            &planned.located.base_from_model.inverse(),
+            &planned.located.base_from_model_covariance,
+            &t.surface.point,
+        ),
+        normal_base: t.normal_base,
+        face_centre: t.surface.corners.is_some(),
     })
 }

@@ -35,6 +35,24 @@ pub struct TrialSummary {
     pub mean_axis_error_at_point_rad: f64,
     /// Largest such error, radians.
     pub max_axis_error_at_point_rad: f64,
+    /// Fraction of the trials whose distance is within its predicted 95 % bound.
+    pub within_bound: f64,
+    /// ... whose axis error is within its predicted bound.
+    pub axis_within_bound: f64,
+    /// Median predicted position bound, metres.
+    pub median_bound_m: f64,
+    /// Median distance, metres.
+    pub median_m: f64,
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut v: Vec<f64> = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -70,8 +88,16 @@ impl TrialSummary {
             refined: rows.iter().filter(|r| r.refined).count(),
             mean_axis_error_at_point_rad: mean(&rows.iter().map(|r| r.axis_error_at_point_rad).collect::<Vec<_>>()),
             max_axis_error_at_point_rad: rows.iter().map(|r| r.axis_error_at_point_rad).fold(0.0, f64::max),
+            within_bound: fraction(rows, |r| r.error().norm() <= r.prediction.position_bound_m),
+            axis_within_bound: fraction(rows, |r| r.axis_error_rad <= r.prediction.axis_bound_rad),
+            median_bound_m: median(&rows.iter().map(|r| r.prediction.position_bound_m).collect::<Vec<_>>()),
+            median_m: median(&d),
         }
     }
+}
+
+fn fraction(rows: &[TrialRow], within: impl Fn(&TrialRow) -> bool) -> f64 {
+    if rows.is_empty() { f64::NAN } else { rows.iter().filter(|r| within(r)).count() as f64 / rows.len() as f64 }
 }
 
 /// The table (module docs), `title` above it, as monospaced text.
@@ -81,15 +107,22 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
     let _ = writeln!(s, "{title}");
     let _ = writeln!(
         s,
-        "{:>5} | {:>26} | {:>26} | {:>22} | {:>8} | {:>8}",
-        "trial", "GT x, y, z (mm)", "estimate x, y, z (mm)", "error x, y, z (mm)", "dist mm", "axis deg"
+        "{:>5} | {:>26} | {:>26} | {:>22} | {:>8} | {:>8} | {:>8} | {:>8}",
+        "trial",
+        "GT x, y, z (mm)",
+        "estimate x, y, z (mm)",
+        "error x, y, z (mm)",
+        "dist mm",
+        "bound mm",
+        "axis deg",
+        "bound"
     );
-    let _ = writeln!(s, "{}", "-".repeat(110));
+    let _ = writeln!(s, "{}", "-".repeat(132));
     for r in rows {
         let (g, e, d) = (r.truth, r.estimate, r.error());
         let _ = writeln!(
             s,
-            "{:>5} | {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2}",
+            "{:>5} | {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2} | {:>8.2} | {:>8.2}",
             r.trial,
             mm(g.x),
             mm(g.y),
@@ -101,7 +134,9 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
             mm(d.y),
             mm(d.z),
             mm(d.norm()),
-            r.axis_error_rad.to_degrees()
+            mm(r.prediction.position_bound_m),
+            r.axis_error_rad.to_degrees(),
+            r.prediction.axis_bound_rad.to_degrees()
         );
     }
     let sum = TrialSummary::of(rows);
@@ -109,11 +144,11 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         let v: Vec<f64> = rows.iter().map(|r| r.error()[i].abs()).collect();
         std(&v)
     };
-    let _ = writeln!(s, "{}", "-".repeat(110));
+    let _ = writeln!(s, "{}", "-".repeat(132));
     let a = sum.mean_abs_axis_m;
     let _ = writeln!(
         s,
-        "{:>5} | {:>26} | {:>26} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2}",
+        "{:>5} | {:>26} | {:>26} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8} | {:>8.2} |",
         "avg",
         "",
         "",
@@ -121,6 +156,7 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         mm(a[1]),
         mm(a[2]),
         mm(sum.mean_m),
+        "",
         sum.mean_axis_error_rad.to_degrees()
     );
     let _ = writeln!(
@@ -154,6 +190,14 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         "axis error against the true normal where the tool meets the surface: mean {:.2} deg, max {:.2} deg",
         sum.mean_axis_error_at_point_rad.to_degrees(),
         sum.max_axis_error_at_point_rad.to_degrees()
+    );
+    let _ = writeln!(
+        s,
+        "predicted 95 % bounds: the distance within its bound in {:.0} % of the trials, the axis in {:.0} %; median bound {:.2} mm for a median distance of {:.2} mm",
+        100.0 * sum.within_bound,
+        100.0 * sum.axis_within_bound,
+        mm(sum.median_bound_m),
+        mm(sum.median_m)
     );
     s
 }
