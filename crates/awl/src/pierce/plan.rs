@@ -60,6 +60,8 @@ pub struct PlannedTarget {
     pub axis_base: Vector3<f64>,
     /// The tool poses, base frame.
     pub poses: ToolPoses,
+    /// Whether the arm reaches it ([`crate::pierce::reach::plan_reach`]); `None`: not checked.
+    pub reach: Option<crate::pierce::reach::TargetReach>,
 }
 
 /// A piercing plan.
@@ -77,6 +79,8 @@ pub struct PiercePlan {
     pub targets: Vec<PlannedTarget>,
     /// Things the user should know (from locating and placing).
     pub warnings: Vec<String>,
+    /// The robot the targets' reach was checked for; `None`: not checked.
+    pub reach: Option<crate::pierce::reach::ReachSetup>,
 }
 
 /// Places `specs` on the model `surface` (failing before any image is read when one is off the
@@ -121,7 +125,7 @@ pub fn plan(
                 ));
             }
             let poses = tool_poses(&p_base, &axis_base, &params.stroke)?;
-            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses })
+            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses, reach: None })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(PiercePlan {
@@ -131,5 +135,6 @@ pub fn plan(
         stroke: params.stroke,
         targets,
         warnings,
+        reach: None,
     })
 }
