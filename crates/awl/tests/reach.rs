@@ -148,7 +148,7 @@ fn capsules_follow_the_link_frames() {
     assert!((nalgebra::center(&cam.a, &cam.b) - centre).norm() < 1e-12);
     // a bad size is named
     let bad = BodyParams { tool_radius_m: -0.001, ..BodyParams::default() };
-    assert!(bad.validate().unwrap_err().to_string().contains("tool_radius_m"));
+    assert!(bad.validate().expect_err("refused").to_string().contains("tool_radius_m"));
     let bad = CollisionParams { reach_m: 0.0, ..CollisionParams::default() };
-    assert!(bad.validate().unwrap_err().to_string().contains("reach_m"));
+    assert!(bad.validate().expect_err("refused").to_string().contains("reach_m"));
 }

@@ -241,11 +241,11 @@ pub fn read_plan_to_send(path: &Path) -> Result<PlanToSend> {
     let mut refused = Vec::new();
     for (i, t) in targets.iter().enumerate() {
         let name = t.get("target").and_then(Value::as_str).unwrap_or("?").to_string();
-        if let Some(r) = t.get("reach").filter(|r| !r.is_null()) {
-            if r.get("reachable").and_then(Value::as_bool) != Some(true) {
-                let why = r.get("reason").and_then(Value::as_str).unwrap_or("not reachable");
-                refused.push((i, name.clone(), format!("not reachable: {why}")));
-            }
+        if let Some(r) = t.get("reach").filter(|r| !r.is_null())
+            && r.get("reachable").and_then(Value::as_bool) != Some(true)
+        {
+            let why = r.get("reason").and_then(Value::as_str).unwrap_or("not reachable");
+            refused.push((i, name.clone(), format!("not reachable: {why}")));
         }
         if t.get("go").and_then(Value::as_bool) == Some(false) {
             let why = t.get("why").and_then(Value::as_str).unwrap_or("no-go");

@@ -207,10 +207,10 @@ mod tests {
     fn packets_parse_back_and_bad_ones_are_named() {
         let p = crate::pierce::tmsct_packet("1", "var_i++");
         assert_eq!(parse_packet(&p), Ok(Packet { header: "TMSCT".into(), data: "1,var_i++".into() }));
-        assert!(parse_packet("$TMSCT,9,1,var_i++,*07\r\n").unwrap_err().contains("checksum"));
+        assert!(parse_packet("$TMSCT,9,1,var_i++,*07\r\n").expect_err("refused").contains("checksum"));
         assert!(parse_packet("$CPERR,2,02,*4A").is_ok());
         let bad = format!("{p}$TMSCT,3,1,x,*00\r\n");
-        assert!(split_packets(&bad).unwrap_err().to_string().contains("packet 2"));
+        assert!(split_packets(&bad).expect_err("refused").to_string().contains("packet 2"));
         let two = format!("{}{p}", crate::pierce::tmsct_packet("a1", "x = 1\r\ny = 2"));
         assert_eq!(split_packets(&two).expect("two").len(), 2);
     }

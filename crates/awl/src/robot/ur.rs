@@ -72,7 +72,7 @@ pub fn send_program(host: &str, port: u16, program: &str, timeout: Duration) -> 
         .write_all(program.as_bytes())
         .and_then(|()| stream.flush())
         .map_err(|e| Error::robot(&address, format!("sending the program ({} bytes): {e}", program.len())))?;
-    let mut buf = vec![0u8; MIN_READ_BYTES];
+    let mut buf = [0u8; MIN_READ_BYTES];
     let mut read = 0;
     while read < MIN_READ_BYTES {
         match stream.read(&mut buf[read..]) {
@@ -117,11 +117,11 @@ mod tests {
     #[test]
     fn programs_of_the_wrong_form_are_named() {
         assert!(check_program("def p():\n  movej([0,0,0,0,0,0])\nend\n").is_ok());
-        let e = check_program("def p():\nmovej([0,0,0,0,0,0])\nend\n").unwrap_err().to_string();
+        let e = check_program("def p():\nmovej([0,0,0,0,0,0])\nend\n").expect_err("refused").to_string();
         assert!(e.contains("line 2 must be indented"), "{e}");
-        let e = check_program("def p():\n  x = 1\nend\np()\n").unwrap_err().to_string();
+        let e = check_program("def p():\n  x = 1\nend\np()\n").expect_err("refused").to_string();
         assert!(e.contains("last line must be `end`"), "{e}");
-        assert!(check_program("# c\ndef p():\nend\n").unwrap_err().to_string().contains("line 1"));
-        assert!(check_program("def p():\nend").unwrap_err().to_string().contains("newline"));
+        assert!(check_program("# c\ndef p():\nend\n").expect_err("refused").to_string().contains("line 1"));
+        assert!(check_program("def p():\nend").expect_err("refused").to_string().contains("newline"));
     }
 }
