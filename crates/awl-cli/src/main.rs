@@ -27,6 +27,8 @@ enum Command {
     Fuse(cmd::fuse::FuseArgs),
     /// Find the workpiece by its tag in a piercing-time shot; plan approach/pierce/retract tool poses (plan.json, URScript).
     Pierce(cmd::pierce::PierceArgs),
+    /// Send a plan's robot program to a UR (primary/secondary interface) or Techman (listen node) controller, or print its bytes.
+    Send(cmd::send::SendArgs),
     /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
     Register(cmd::register::RegisterArgs),
     /// The reference paper's piercing trials in simulation (calibrate, scan + fuse, shots, pierce) as its Tables I-IV.
@@ -77,6 +79,7 @@ fn main() -> std::process::ExitCode {
         Command::Fuse(args) => cmd::fuse::run(&args),
         Command::Pierce(args) => cmd::pierce::run(&args),
         Command::Register(args) => cmd::register::run(&args),
+        Command::Send(args) => cmd::send::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),
         Command::Tags(args) => cmd::tags::run(&args),
         Command::Trial(args) => cmd::trial::run(&args),

@@ -357,3 +357,126 @@ fn each_target_gets_a_predicted_bound_and_the_tolerance_gates_it() {
         }
     }
 }
+
+/// `--robot ur10e --tcp` (the shot's top centre is 0.78 m out and tilted away: beyond a UR5e with a
+/// 150 mm tool): the plan's reach (joints that put the tool on the spun tool poses, margins,
+/// clearance), the programs in joint space then linear, `awl send --dry-run` giving the program
+/// file's bytes; an arm that cannot reach the target is reported and left out of the programs;
+/// bad robot input is a clear error.
+#[test]
+fn with_a_robot_the_plan_says_whether_the_arm_reaches_and_moves_in_joint_space() {
+    let su = setup(0);
+    let dir = su.dir.path();
+    let tcp = dir.join("tcp.json");
+    let ee_from_tool = nalgebra::Isometry3::translation(0.0, 0.0, 0.15);
+    std::fs::write(&tcp, serde_json::json!({ "T_ee_tool": rows_from_isometry(&ee_from_tool) }).to_string())
+        .expect("tcp");
+    let target = format!("face-centre@{},{},{}", su.pick.x, su.pick.y, su.pick.z);
+    let run = |robot: &str, name: &str| {
+        let plan = dir.join(format!("{name}.json"));
+        let script = dir.join(format!("{name}.script"));
+        let techman = dir.join(format!("{name}.tm"));
+        let out = awl(&[
+            "pierce",
+            s(&su.workpiece),
+            "--shot",
+            s(&su.shot),
+            "--target",
+            &target,
+            "--hand-eye",
+            s(&su.hand_eye),
+            "--robot",
+            robot,
+            "--tcp",
+            s(&tcp),
+            "-o",
+            s(&plan),
+            "--urscript",
+            s(&script),
+            "--techman",
+            s(&techman),
+        ]);
+        // an unreachable target is no-go: the plan is written and the exit code is 3
+        let expected = if robot == "ur3e" { Some(3) } else { Some(0) };
+        assert_eq!(out.status.code(), expected, "{}", text(&out));
+        println!("{}", text(&out));
+        (read_json(&plan), plan, script, techman)
+    };
+    let (j, plan, script, techman) = run("ur10e", "ur10e");
+    assert_eq!(j["pose_frame"], "tool");
+    assert_eq!(j["robot"]["arm"], "ur10e");
+    assert!((matrix(&j["robot"]["T_ee_tool"]).translation.z - 0.15).abs() < 1e-12);
+    let t = &j["targets"][0];
+    let r = &t["reach"];
+    assert_eq!(r["reachable"], true, "{r}");
+    let arm = awl::kinematics::Arm::by_name("ur10e").expect("ur10e");
+    let axis = vec3(&t["axis_base"]);
+    for pose in ["approach", "pierce", "retract"] {
+        let q: [f64; 6] = serde_json::from_value(r["q_rad"][pose].clone()).expect("6 joints");
+        let tool = matrix(&r["tool"][pose]["T"]);
+        let (dt, dr) = awl::transform::pose_difference(&(arm.base_from_flange(&q) * ee_from_tool), &tool);
+        assert!(dt < 1e-9 && dr < 1e-9, "{pose}: FK of the joints is {dt} m / {dr} rad off the tool pose");
+        let (dt, dr) = awl::transform::pose_difference(&arm.base_from_flange(&q), &matrix(&r["flange"][pose]["T"]));
+        assert!(dt < 1e-9 && dr < 1e-9, "{pose}: flange");
+        // the spin keeps the piercing axis and the tool's position
+        assert!((tool.rotation * Vector3::z() - axis).norm() < 1e-9);
+        let plain = matrix(&t[pose]["T"]);
+        assert!((tool.translation.vector - plain.translation.vector).norm() < 1e-12);
+    }
+    let m = &r["margins"];
+    println!("ur10e reach: spin {} deg, margins {m}, clearance {}", r["spin_deg"], r["clearance"]);
+    assert!(m["limit_deg"].as_f64().expect("limit") > 0.0 && m["wrist_sin"].as_f64().expect("wrist") >= 0.05);
+    let program = std::fs::read_to_string(&script).expect("script");
+    assert_eq!(program.matches("movej([").count(), 1, "{program}");
+    assert_eq!(program.matches("movel(p[").count(), 2, "{program}");
+    assert!(program.contains("set_tcp(p[0.000000, 0.000000, 0.150000"), "{program}");
+    assert!(program.starts_with("def awl_pierce():\n") && program.ends_with("\nend\n"), "{program}");
+    let packets = std::fs::read_to_string(&techman).expect("techman");
+    assert!(packets.contains("ChangeTCP(0.000,0.000,150.000,") && packets.contains("PTP(\"JPP\","), "{packets}");
+    // awl send prints exactly the program file's bytes, and the packets file's
+    for (flag, file) in [("--ur", &script), ("--techman", &techman)] {
+        let out = awl(&["send", s(&plan), flag, "127.0.0.1", "--dry-run"]);
+        assert!(out.status.success(), "{}", text(&out));
+        assert_eq!(out.stdout, std::fs::read(file).expect("file"), "{flag}");
+    }
+    // a UR3e (0.5 m reach) cannot get there: reported with the reason, left out of the programs
+    let (j, plan, script, techman) = run("ur3e", "ur3e");
+    let r = &j["targets"][0]["reach"];
+    println!("ur3e: {}", r["reason"]);
+    assert_eq!(r["reachable"], false);
+    assert!(r["reason"].as_str().expect("reason").contains("out of reach"), "{r}");
+    let program = std::fs::read_to_string(&script).expect("script");
+    assert!(!program.contains("movel(") && program.contains("# left out: not reachable"), "{program}");
+    assert!(!std::fs::read_to_string(&techman).expect("tm").contains("Line("));
+    let out = awl(&["send", s(&plan), "--ur", "127.0.0.1", "--dry-run"]);
+    assert!(!out.status.success() && text(&out).contains("not reachable"), "{}", text(&out));
+    // bad input
+    let plan = dir.join("bad_plan.json");
+    let base = ["pierce", s(&su.workpiece), "--shot", s(&su.shot), "--target", &target, "-o", s(&plan)];
+    let fail = |extra: &[&str]| {
+        let mut args = base.to_vec();
+        args.extend_from_slice(extra);
+        let out = awl(&args);
+        assert!(!out.status.success(), "{}", text(&out));
+        assert!(!plan.exists());
+        text(&out)
+    };
+    let t = fail(&["--robot", "ur6", "--tcp", s(&tcp)]);
+    assert!(t.contains("unknown arm `ur6`") && t.contains("ur5e") && t.contains("tm5-700"), "{t}");
+    let t = fail(&["--robot", "ur5e"]);
+    assert!(t.contains("--tcp"), "{t}");
+    let t = fail(&["--tcp", s(&tcp)]);
+    assert!(t.contains("need --robot"), "{t}");
+    let skew = dir.join("skew.json");
+    std::fs::write(&skew, r#"{"T_ee_tool": [[1,0.1,0,0],[0,1,0,0],[0,0,1,0.15],[0,0,0,1]]}"#).expect("skew");
+    let t = fail(&["--robot", "ur5e", "--tcp", s(&skew)]);
+    assert!(t.contains("T_ee_tool") && t.contains("skew.json"), "{t}");
+    let arm_file = dir.join("arm.json");
+    std::fs::write(&arm_file, awl::io::arm::arm_json(&awl::kinematics::Arm::by_name("ur5e").expect("ur5e")))
+        .expect("arm");
+    let mut v = read_json(&arm_file);
+    v["dh"].as_array_mut().expect("dh").pop();
+    std::fs::write(&arm_file, v.to_string()).expect("arm");
+    let t = fail(&["--robot-file", s(&arm_file), "--tcp", s(&tcp)]);
+    assert!(t.contains("arm.json") && t.contains("dh"), "{t}");
+}

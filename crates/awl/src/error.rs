@@ -43,6 +43,14 @@ pub enum Error {
         /// What is wrong with it.
         message: String,
     },
+    /// A robot controller could not be reached, did not answer in time, or refused what was sent.
+    #[error("robot controller {address}: {message}")]
+    Robot {
+        /// The controller's address (`host:port`).
+        address: String,
+        /// What happened, and what was being sent.
+        message: String,
+    },
 }
 
 impl Error {
@@ -53,6 +61,10 @@ impl Error {
     /// An [`Error::Format`] for `path`.
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Self::Format { path: path.into(), message: message.into() }
+    }
+    /// An [`Error::Robot`] for the controller at `address`.
+    pub fn robot(address: impl Into<String>, message: impl Into<String>) -> Self {
+        Self::Robot { address: address.into(), message: message.into() }
     }
     /// An [`Error::Field`] for `field` of `path`.
     pub fn field(path: impl Into<PathBuf>, field: impl Into<String>, message: impl Into<String>) -> Self {

@@ -350,7 +350,7 @@ fn lines_crossing_a_joint_limit_are_reported() {
     let f = report.failure.as_ref().expect("the line crosses joint 3's limit");
     println!("tm5-700 elbow: {f}");
     match f.kind {
-        FailureKind::JointLimit { joint, q_rad, limits } => {
+        FailureKind::Ik(Reason::JointLimit { joint, q_rad, limits }) => {
             assert_eq!(joint, 3);
             assert!(q_rad > limits[1] && q_rad < limits[1] + 0.02, "{q_rad}"); // just past 155 deg
         }
@@ -367,7 +367,7 @@ fn lines_crossing_a_joint_limit_are_reported() {
     let report = check_path(&a, &poses, &start, &LineParams::default()).expect("line");
     let f = report.failure.as_ref().expect("the line crosses joint 6's limit");
     println!("ur5e wrist 3: {f}");
-    assert!(matches!(f.kind, FailureKind::JointLimit { joint: 6, .. }), "{:?}", f.kind);
+    assert!(matches!(f.kind, FailureKind::Ik(Reason::JointLimit { joint: 6, .. })), "{:?}", f.kind);
     assert!((f.s - 0.5).abs() < 0.02, "{}", f.s); // 360 deg is half way
 }
 
@@ -383,7 +383,7 @@ fn lines_through_a_singularity_are_reported() {
     let report = check_path(&a, &poses, &start_at(&a, &q0), &LineParams::default()).expect("line");
     let f = report.failure.as_ref().expect("the line stretches the elbow");
     println!("elbow: {f}; min elbow measure before it {:.4}", report.min.elbow);
-    assert!(matches!(f.kind, FailureKind::Singular { measure: Measure::Elbow, .. }), "{:?}", f.kind);
+    assert!(matches!(f.kind, FailureKind::Ik(Reason::Singular { measure: Measure::Elbow, .. })), "{:?}", f.kind);
     // beyond the reach: 0.3 m further out along the arm, out of reach after the elbow singularity
     let pose0 = a.base_from_flange(&q0);
     let f = a.link_frames(&q0);
@@ -394,7 +394,7 @@ fn lines_through_a_singularity_are_reported() {
     let f = report.failure.as_ref().expect("the line leaves the reach");
     println!("outward: {f}; min elbow measure before it {:.4}", report.min.elbow);
     assert!(
-        matches!(f.kind, FailureKind::Singular { measure: Measure::Elbow, .. } | FailureKind::OutOfReach(_)),
+        matches!(f.kind, FailureKind::Ik(Reason::Singular { measure: Measure::Elbow, .. } | Reason::OutOfReach(_))),
         "{:?}",
         f.kind
     );
@@ -406,7 +406,7 @@ fn lines_through_a_singularity_are_reported() {
     let report = check_path(&a, &poses, &start_at(&a, &q0), &LineParams::default()).expect("line");
     let f = report.failure.as_ref().expect("the line passes the wrist singularity");
     println!("wrist: {f}; min wrist measure before it {:.4}", report.min.wrist);
-    assert!(matches!(f.kind, FailureKind::Singular { measure: Measure::Wrist, .. }), "{:?}", f.kind);
+    assert!(matches!(f.kind, FailureKind::Ik(Reason::Singular { measure: Measure::Wrist, .. })), "{:?}", f.kind);
     // with the refusal off the same line shows as a jump of joints 4 / 6 where the wrist flips
     let off = LineParams { ik: IkParams::no_refusal(), ..LineParams::default() };
     let report = check_path(&a, &poses, &start_at(&a, &q0), &off).expect("line");

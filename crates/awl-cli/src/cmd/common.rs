@@ -89,8 +89,8 @@ impl std::fmt::Display for NoGo {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} of {} target(s) are no-go (their predicted error exceeds the tolerance): they are left out of the \
-             robot programs; plan.json says why (exit code {})",
+            "{} of {} target(s) are no-go (a predicted error over the tolerance, or out of the arm's reach): they are \
+             left out of the robot programs; plan.json says why (exit code {})",
             self.refused,
             self.targets,
             Self::EXIT_CODE

@@ -8,6 +8,7 @@ pub mod fuse;
 pub mod info;
 pub mod pierce;
 pub mod register;
+pub mod send;
 pub mod simulate;
 pub mod tags;
 pub mod trial;

@@ -4,17 +4,21 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use awl::io::arm::read_arm;
+use awl::io::evaluation::read_transform;
 use awl::io::handeye::read_ee_from_camera;
 use awl::io::mesh::read_cloud;
-use awl::io::plan::{PlanSources, plan_json, write_plan};
+use awl::io::plan::{PlanSources, plan_json, programs_json, write_plan_value};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
+use awl::kinematics::Arm;
 use awl::pierce::{
-    AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ScriptSpeeds, Stroke, Tolerance, plan,
-    techman_packets, urscript,
+    AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ReachParams, ScriptSpeeds, Stroke, Tolerance,
+    plan, plan_reach, shot_joints, techman_packets, urscript,
 };
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
+use nalgebra::Isometry3;
 
 use super::common::{NoGo, refuse_overwriting_inputs};
 
@@ -83,6 +87,33 @@ pub struct PierceArgs {
     /// Print the plan as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub robot: RobotArgs,
+}
+
+/// The arm the plan's reach is checked for (`--robot` / `--robot-file`).
+#[derive(clap::Args)]
+pub struct RobotArgs {
+    /// Check each target's reach for this built-in arm (ur3e, ur5e, ur10e, ur16e, ur20, ur30, tm5-700,
+    /// tm5-900, tm12, tm14): joints, margins, collisions; unreachable targets are left out of the programs.
+    #[arg(long, conflicts_with = "robot_file")]
+    pub robot: Option<String>,
+    /// ... or for the arm of this awl-arm/1 file (DH table, limits, T_dh6_flange).
+    #[arg(long)]
+    pub robot_file: Option<PathBuf>,
+    /// T_ee_tool (JSON: a 4x4 matrix, or {"T_ee_tool": 4x4}): the tool centre point on the flange, the
+    /// controller's TCP. Needed with --robot / --robot-file.
+    #[arg(long)]
+    pub tcp: Option<PathBuf>,
+    /// Keep this spin about the tool axis, degrees, instead of searching the spin with the most margin.
+    #[arg(long, allow_hyphen_values = true)]
+    pub fixed_spin: Option<f64>,
+    /// The tool's radius for the collision check, metres.
+    #[arg(long, default_value_t = 0.004)]
+    pub tool_radius_m: f64,
+    /// The tool's length back from its tip, metres (default: the flange-to-TCP distance).
+    #[arg(long)]
+    pub tool_length_m: Option<f64>,
 }
 
 fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
@@ -95,6 +126,37 @@ fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
     Ok(specs)
 }
 
+/// The arm, `T_ee_tool` and the reach settings of `--robot` / `--robot-file`, if given.
+pub fn robot_setup(args: &RobotArgs) -> anyhow::Result<Option<(Arm, Isometry3<f64>, ReachParams)>> {
+    let arm = match (&args.robot, &args.robot_file) {
+        (Some(name), _) => Arm::by_name(name).context("--robot")?,
+        (None, Some(path)) => read_arm(path).context("--robot-file")?,
+        (None, None) => {
+            anyhow::ensure!(
+                args.tcp.is_none() && args.fixed_spin.is_none(),
+                "--tcp and --fixed-spin need --robot NAME or --robot-file arm.json"
+            );
+            return Ok(None);
+        }
+    };
+    let Some(tcp) = &args.tcp else {
+        anyhow::bail!(
+            "--robot needs --tcp T_ee_tool.json (the tool centre point on the flange): the reach and the collision \
+             checks depend on the tool"
+        );
+    };
+    let ee_from_tool = read_transform(tcp, "T_ee_tool").context("--tcp")?;
+    let mut reach = ReachParams::default();
+    if let Some(deg) = args.fixed_spin {
+        anyhow::ensure!(deg.is_finite() && deg.abs() <= 360.0, "--fixed-spin must be degrees within +-360, got {deg}");
+        reach.spin.fixed_rad = Some(deg.to_radians());
+    }
+    reach.body.tool_radius_m = args.tool_radius_m;
+    reach.body.tool_length_m = args.tool_length_m;
+    reach.body.validate().context("--tool-radius-m / --tool-length-m")?;
+    Ok(Some((arm, ee_from_tool, reach)))
+}
+
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let specs = targets(args)?;
@@ -102,6 +164,8 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         let mut inputs: Vec<&Path> = vec![args.workpiece.as_path()];
         inputs.extend(args.targets_file.as_deref());
         inputs.extend(args.hand_eye.as_deref());
+        inputs.extend(args.robot.robot_file.as_deref());
+        inputs.extend(args.robot.tcp.as_deref());
         refuse_overwriting_inputs(out, &inputs)?;
         anyhow::ensure!(!out.starts_with(&args.shot), "{}: refusing to write into the shot folder", out.display());
     }
@@ -144,22 +208,28 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     };
     params.tolerance.validate()?;
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
-    let plan = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
+    let robot = robot_setup(&args.robot)?;
+    let mut plan = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
+    if let Some((arm, ee_from_tool, reach)) = &robot {
+        let reference = shot_joints(&shot)?;
+        plan_reach(&mut plan, arm, ee_from_tool, &model, workpiece.floor, reference, reach)?;
+    }
     let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
     // everything is computed before the first file is written
-    let script = args
-        .urscript
-        .as_ref()
-        .map(|_| urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string()));
-    let techman = args.techman.as_ref().map(|_| techman_packets(&plan, &ScriptSpeeds::default()));
-    write_plan(&args.output, &plan, &sources)?;
+    let ur_program = urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string());
+    let tm_packets = techman_packets(&plan, &ScriptSpeeds::default());
+    let script = args.urscript.as_ref().map(|_| ur_program.clone());
+    let techman = args.techman.as_ref().map(|_| tm_packets.clone());
+    let mut json = plan_json(&plan, &sources);
+    json["programs"] = programs_json(&ur_program, &tm_packets);
+    write_plan_value(&args.output, &json)?;
     for (path, text) in [(&args.urscript, script), (&args.techman, techman)] {
         if let (Some(path), Some(text)) = (path, text) {
             awl::io::write_atomic(path, text.as_bytes())?;
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&plan_json(&plan, &sources))?);
+        println!("{}", serde_json::to_string_pretty(&json)?);
     } else if !args.quiet {
         print_summary(&plan, args);
     }
@@ -207,11 +277,44 @@ fn print_summary(plan: &PiercePlan, args: &PierceArgs) {
             t.refusal.as_ref().map_or("go".to_string(), |why| format!("NO GO: {why}"))
         );
     }
+    print_reach(plan);
     for w in &plan.warnings {
         println!("warning: {w}");
     }
     println!("wrote {}", args.output.display());
     for path in args.urscript.iter().chain(&args.techman) {
         println!("wrote {}", path.display());
+    }
+}
+
+fn print_reach(plan: &PiercePlan) {
+    let Some(setup) = &plan.reach else { return };
+    println!(
+        "reach for {} ({} model points{}{}):",
+        setup.arm,
+        setup.model_points,
+        if setup.floor { ", floor" } else { "" },
+        setup.prefer.map_or(String::new(), |b| format!("; the shot's configuration {b} preferred"))
+    );
+    for t in &plan.targets {
+        let Some(r) = &t.reach else { continue };
+        if !r.reachable {
+            println!("  target {}: NOT REACHABLE, left out of the programs: {}", t.surface.spec, r.reason);
+            continue;
+        }
+        let m = r.margins.as_ref();
+        let clearance = r.clearance.map_or("nothing near".to_string(), |c| {
+            format!("{:.1} mm ({} to the {})", c.distance_m * 1e3, c.link.name(), c.against.name())
+        });
+        println!(
+            "  target {}: reachable, {}, spin {:.0} deg; margins: limits {:.1} deg, wrist {:.2}, elbow {:.2}, shoulder {:.0} mm; clearance {clearance}",
+            t.surface.spec,
+            r.branch.map_or(String::new(), |b| b.to_string()),
+            r.spin_rad.to_degrees(),
+            m.map_or(f64::NAN, |m| m.limit_rad.to_degrees()),
+            m.map_or(f64::NAN, |m| m.wrist),
+            m.map_or(f64::NAN, |m| m.elbow),
+            m.map_or(f64::NAN, |m| m.shoulder_m * 1e3),
+        );
     }
 }

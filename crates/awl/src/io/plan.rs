@@ -21,11 +21,26 @@
 //!                  "approach": POSE, "pierce": POSE, "retract": POSE,
 //!                  "predicted_error_mm": 1.4 (95 % bound on the point's error; null: unbounded),
 //!                  "predicted_axis_error_deg": 0.5 (95 % bound on the tool axis' error),
-//!                  "go": true, "why": null | "the predicted position error 3.1 mm exceeds the tolerance 2.0 mm" } ],
+//!                  "go": true, "why": null | "the predicted position error 3.1 mm exceeds the tolerance 2.0 mm",
+//!                  "reach": REACH | null } ],
+//!   "pose_frame": "tool", "robot": ROBOT | null,
+//!   "programs": { "urscript": "def awl_pierce(): ...", "techman": "$TMSCT,..." },
 //!   "warnings": [] }
 //! ```
 //! `POSE` = `{ "T": [[4x4]], "xyz": [x,y,z], "quaternion_xyzw": [x,y,z,w], "ur_axis_angle": [x,y,z,rx,ry,rz] }`,
-//! base frame, metres.
+//! base frame, metres. The targets' `approach` / `pierce` / `retract` are tool poses (`T_base_tool`,
+//! `pose_frame`).
+//!
+//! With `--robot` ([`crate::pierce::reach`]):
+//! `ROBOT` = `{ "arm": "ur5e", "T_ee_tool": [[4x4]], "q_reference_rad": [6] | null,
+//!   "preferred_configuration": CONF | null, "model_points": 41000, "floor_checked": true }`;
+//! `REACH` = `{ "reachable": true, "reason": null | "...", "spin_deg": 10.0, "configuration": CONF | null,
+//!   "q_rad": { "approach": [6], "pierce": [6], "retract": [6] } | null,
+//!   "tool": { "approach": POSE, "pierce": POSE, "retract": POSE } | null (T_base_tool turned by the spin:
+//!   the programs' poses), "flange": { ... } | null (T_base_flange),
+//!   "margins": { "limit_deg", "wrist_sin", "elbow_sin", "shoulder_m" } | null,
+//!   "clearance": { "m": 0.021, "link": "tool", "against": "model" } | null, "candidates_passed": 100 }`;
+//! `CONF` = `{ "shoulder": 1, "elbow": -1, "wrist": 1 }`.
 
 use std::path::Path;
 
@@ -34,6 +49,7 @@ use serde_json::{Value, json};
 
 use crate::error::Result;
 use crate::io::write_atomic;
+use crate::pierce::reach::{ReachSetup, TargetReach};
 use crate::pierce::{PiercePlan, quaternion_xyzw, ur_pose};
 use crate::transform::rows_from_isometry;
 
@@ -126,7 +142,8 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
                 "approach": pose(&t.poses.approach), "pierce": pose(&t.poses.pierce), "retract": pose(&t.poses.retract),
                 "predicted_error_mm": finite(t.prediction.position_bound_m * 1e3),
                 "predicted_axis_error_deg": finite(t.prediction.axis_bound_rad.to_degrees()),
-                "go": t.go(), "why": t.refusal,
+                "go": t.go(), "why": t.no_go_reason(),
+                "reach": t.reach.as_ref().map(reach_json),
             })
         })
         .collect();
@@ -151,8 +168,110 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
         "hand_eye_estimate": hand_eye,
         "detections": detections,
         "targets": targets,
+        "pose_frame": "tool",
+        "robot": plan.reach.as_ref().map(robot_json),
         "warnings": plan.warnings,
     })
+}
+
+fn configuration(b: &crate::kinematics::Branch) -> Value {
+    json!({ "shoulder": b.shoulder, "elbow": b.elbow, "wrist": b.wrist })
+}
+
+fn three(poses: [&Isometry3<f64>; 3]) -> Value {
+    json!({ "approach": pose(poses[0]), "pierce": pose(poses[1]), "retract": pose(poses[2]) })
+}
+
+/// A target's `reach` block (module docs).
+pub fn reach_json(r: &TargetReach) -> Value {
+    json!({
+        "reachable": r.reachable,
+        "reason": if r.reachable { Value::Null } else { json!(r.reason) },
+        "spin_deg": r.spin_rad.to_degrees(),
+        "configuration": r.branch.as_ref().map(configuration),
+        "q_rad": r.joints.map(|j| json!({ "approach": j.approach, "pierce": j.pierce, "retract": j.retract })),
+        "tool": r.tool_poses.as_ref().map(|p| three([&p.approach, &p.pierce, &p.retract])),
+        "flange": r.flange_poses.as_ref().map(|p| three([&p[0], &p[1], &p[2]])),
+        "margins": r.margins.map(|m| json!({
+            "limit_deg": m.limit_rad.to_degrees(), "wrist_sin": m.wrist, "elbow_sin": m.elbow, "shoulder_m": m.shoulder_m,
+        })),
+        "clearance": r.clearance.map(|c| json!({ "m": c.distance_m, "link": c.link.name(), "against": c.against.name() })),
+        "candidates_passed": r.candidates_passed,
+    })
+}
+
+/// The plan's `robot` block (module docs).
+pub fn robot_json(r: &ReachSetup) -> Value {
+    json!({
+        "arm": r.arm,
+        "T_ee_tool": rows_from_isometry(&r.ee_from_tool),
+        "q_reference_rad": r.reference_q,
+        "preferred_configuration": r.prefer.as_ref().map(configuration),
+        "model_points": r.model_points,
+        "floor_checked": r.floor,
+    })
+}
+
+/// The `programs` block: the URScript program and the Techman packets, as `awl send` sends them.
+pub fn programs_json(urscript: &str, techman: &str) -> Value {
+    json!({ "urscript": urscript, "techman": techman })
+}
+
+/// Writes a plan's JSON value (e.g. [`plan_json`] with [`programs_json`] added) atomically.
+///
+/// # Errors
+/// [`crate::Error::Io`] when the file cannot be written.
+pub fn write_plan_value(path: &Path, value: &Value) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(value).unwrap_or_default();
+    text.push('\n');
+    write_atomic(path, text.as_bytes())
+}
+
+/// What `awl send` needs from a plan.json: its programs and the targets that must not be run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanToSend {
+    /// The URScript program (`programs.urscript`).
+    pub urscript: String,
+    /// The Techman listen-node packets (`programs.techman`).
+    pub techman: String,
+    /// Per refused target: its index, its `target` string and why (`reach.reachable` false, or the
+    /// gate's `go` false with its `why`).
+    pub refused: Vec<(usize, String, String)>,
+}
+
+/// Reads what `awl send` needs from plan.json.
+///
+/// # Errors
+/// [`crate::Error::Io`]; [`crate::Error::Format`] for invalid JSON; [`crate::Error::Field`] naming
+/// `format`, `programs.urscript` / `programs.techman` or `targets` when missing or of the wrong kind.
+pub fn read_plan_to_send(path: &Path) -> Result<PlanToSend> {
+    use crate::error::Error;
+    let value: Value = crate::io::scan::parse_json(path, &crate::io::read_bytes(path)?)?;
+    if value.get("format").and_then(Value::as_str) != Some(PLAN_FORMAT) {
+        return Err(Error::field(path, "format", format!("must be \"{PLAN_FORMAT}\" (a plan.json of awl pierce)")));
+    }
+    let program = |key: &str| {
+        value.get("programs").and_then(|p| p.get(key)).and_then(Value::as_str).map(str::to_string).ok_or_else(|| {
+            Error::field(path, format!("programs.{key}"), "missing: write the plan again with this awl pierce")
+        })
+    };
+    let targets =
+        value.get("targets").and_then(Value::as_array).ok_or_else(|| Error::field(path, "targets", "missing"))?;
+    let mut refused = Vec::new();
+    for (i, t) in targets.iter().enumerate() {
+        let name = t.get("target").and_then(Value::as_str).unwrap_or("?").to_string();
+        if let Some(r) = t.get("reach").filter(|r| !r.is_null())
+            && r.get("reachable").and_then(Value::as_bool) != Some(true)
+        {
+            let why = r.get("reason").and_then(Value::as_str).unwrap_or("not reachable");
+            refused.push((i, name.clone(), format!("not reachable: {why}")));
+        }
+        if t.get("go").and_then(Value::as_bool) == Some(false) {
+            let why = t.get("why").and_then(Value::as_str).unwrap_or("no-go");
+            refused.push((i, name, format!("no-go: {why}")));
+        }
+    }
+    Ok(PlanToSend { urscript: program("urscript")?, techman: program("techman")?, refused })
 }
 
 /// Writes plan.json atomically.

@@ -10,7 +10,7 @@ use std::f64::consts::PI;
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
-use super::ik::{self, Branch, IkParams, IkSolution, Measure, Measures, joint_distance};
+use super::ik::{self, Branch, IkParams, IkSolution, Measures, Reason, joint_distance};
 use super::{Arm, Joints};
 use crate::error::{Error, Result};
 use crate::pierce::ToolPoses;
@@ -105,26 +105,10 @@ pub struct LineSample {
 /// What stopped a path.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FailureKind {
-    /// The followed configuration has no solution there (the message says why).
-    OutOfReach(String),
-    /// A singularity measure fell below its minimum.
-    Singular {
-        /// Which measure.
-        measure: Measure,
-        /// Its value there.
-        value: f64,
-        /// The minimum.
-        min: f64,
-    },
-    /// A joint left its limits.
-    JointLimit {
-        /// The joint, 1-based.
-        joint: usize,
-        /// Its value there, radians.
-        q_rad: f64,
-        /// Its limits, radians.
-        limits: [f64; 2],
-    },
+    /// The followed configuration failed as an inverse-kinematics solution there: out of reach,
+    /// a singularity measure below its minimum, or a joint outside its limits (`q_rad`: the
+    /// value followed along the path, radians).
+    Ik(Reason),
     /// A joint moved too far between two checked points.
     Jump {
         /// The joint, 1-based.
@@ -159,17 +143,14 @@ impl std::fmt::Display for LineFailure {
             self.s * 1e2
         )?;
         match &self.kind {
-            FailureKind::OutOfReach(m) => write!(f, "out of reach: {m}"),
-            FailureKind::Singular { measure, value, min } => {
-                write!(f, "near a singularity: {} = {value:.4} below {min}", measure.name())
-            }
-            FailureKind::JointLimit { joint, q_rad, limits } => write!(
+            FailureKind::Ik(Reason::JointLimit { joint, q_rad, limits }) => write!(
                 f,
                 "joint {joint} reaches {:.2} deg, outside its limits [{:.1}, {:.1}] deg",
                 q_rad.to_degrees(),
                 limits[0].to_degrees(),
                 limits[1].to_degrees()
             ),
+            FailureKind::Ik(reason) => write!(f, "{reason}"),
             FailureKind::Jump { joint, delta_rad, max_rad } => write!(
                 f,
                 "joint {joint} jumps {:.2} deg between two checked points (allowed {:.2} deg)",
@@ -284,11 +265,11 @@ pub fn check_path(arm: &Arm, poses: &[Isometry3<f64>], start: &IkSolution, param
                         other => other.to_string(),
                     },
                 );
-                report.failure = Some(fail(FailureKind::OutOfReach(why)));
+                report.failure = Some(fail(FailureKind::Ik(Reason::OutOfReach(why))));
                 return Ok(report);
             };
-            if let Some(ik::Reason::Singular { measure, value, min }) = ik::singular(&r.measures, &params.ik) {
-                report.failure = Some(fail(FailureKind::Singular { measure, value, min }));
+            if let Some(reason) = ik::singular(&r.measures, &params.ik) {
+                report.failure = Some(fail(FailureKind::Ik(reason)));
                 return Ok(report);
             }
             let mut q = r.q;
@@ -303,8 +284,11 @@ pub fn check_path(arm: &Arm, poses: &[Isometry3<f64>], start: &IkSolution, param
                 return Ok(report);
             }
             if let Some(j) = (0..6).find(|&j| q[j] < arm.limits[j][0] || q[j] > arm.limits[j][1]) {
-                report.failure =
-                    Some(fail(FailureKind::JointLimit { joint: j + 1, q_rad: q[j], limits: arm.limits[j] }));
+                report.failure = Some(fail(FailureKind::Ik(Reason::JointLimit {
+                    joint: j + 1,
+                    q_rad: q[j],
+                    limits: arm.limits[j],
+                })));
                 return Ok(report);
             }
             let margin = arm.limit_margin_rad(&q);
@@ -360,7 +344,7 @@ pub struct SpinSearch {
     /// (spin, configuration, why it failed) of every candidate that did not pass; configuration
     /// `None` when the approach pose itself had no solution.
     pub failures: Vec<(f64, Option<Branch>, String)>,
-    /// Candidates that passed.
+    /// Candidates whose path passed (before any `accept` of [`best_spin_with`]).
     pub passed: usize,
 }
 
@@ -422,8 +406,30 @@ pub fn best_spin(
     line: &LineParams,
     spin: &SpinParams,
 ) -> Result<SpinSearch> {
+    best_spin_with(arm, tool, ee_from_tool, line, spin, None, &mut |_| Ok(None))
+}
+
+/// [`best_spin`] with two more rules: the candidates whose path passed are taken in order of
+/// preference — those of the configuration `prefer` first (e.g. the configuration of the arm's
+/// joint state at the shot), then by [`Margins::score`], highest first (ties: the smaller spin,
+/// then the configuration nearest the reference) — and `accept` is asked about each in that
+/// order until it accepts one (`Ok(None)`); a refusal (`Ok(Some(why))`, e.g. a collision) is added
+/// to the failures and the next candidate asked.
+///
+/// # Errors
+/// As [`best_spin`], and any error of `accept`.
+pub fn best_spin_with(
+    arm: &Arm,
+    tool: &ToolPoses,
+    ee_from_tool: &Isometry3<f64>,
+    line: &LineParams,
+    spin: &SpinParams,
+    prefer: Option<Branch>,
+    accept: &mut dyn FnMut(&SpinChoice) -> Result<Option<String>>,
+) -> Result<SpinSearch> {
     let tool_from_ee = ee_from_tool.inverse();
     let mut search = SpinSearch { best: None, failures: Vec::new(), passed: 0 };
+    let mut passed: Vec<SpinChoice> = Vec::new();
     for s in spins(spin)? {
         let rz =
             Isometry3::from_parts(Translation3::identity(), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), s));
@@ -443,11 +449,27 @@ pub fn best_spin(
                 ));
                 continue;
             }
-            search.passed += 1;
             let score = report.min.score(&spin.scale);
-            if search.best.as_ref().is_none_or(|b| score > b.score) {
-                search.best = Some(SpinChoice { spin_rad: s, flange_poses, start: *start, report, score });
+            passed.push(SpinChoice { spin_rad: s, flange_poses, start: *start, report, score });
+        }
+    }
+    search.passed = passed.len();
+    // stable: equal keys keep the search order (smaller spin, then nearer the reference)
+    passed.sort_by(|a, b| {
+        let other = |c: &SpinChoice| prefer.is_some_and(|p| p != c.start.branch);
+        other(a).cmp(&other(b)).then(b.score.total_cmp(&a.score))
+    });
+    for choice in passed {
+        match accept(&choice)? {
+            None => {
+                search.best = Some(choice);
+                break;
             }
+            Some(why) => search.failures.push((
+                choice.spin_rad,
+                Some(choice.start.branch),
+                format!("{} (spin {:.0} deg): {why}", choice.start.branch, choice.spin_rad.to_degrees()),
+            )),
         }
     }
     Ok(search)

@@ -16,6 +16,7 @@
 //! No I/O here: the arm-file reader is [`crate::io::arm`].
 
 pub mod arms;
+pub mod collision;
 pub mod ik;
 pub mod line;
 
@@ -28,7 +29,7 @@ use crate::error::{Error, Result};
 pub use ik::{Branch, IkParams, IkSolution, IkSolutions, Measure, Measures, Reason, Refusal};
 pub use line::{
     FailureKind, LineFailure, LineParams, LineReport, LineSample, Margins, SpinChoice, SpinParams, SpinSearch,
-    best_spin, check_path,
+    best_spin, best_spin_with, check_path,
 };
 
 /// Six joint values, radians (joint 1 first).

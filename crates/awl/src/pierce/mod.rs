@@ -8,11 +8,13 @@
 pub mod locate;
 pub mod plan;
 pub mod predict;
+pub mod reach;
 pub mod script;
 pub mod tool;
 
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
 pub use predict::{PredictParams, Prediction, Tolerance};
+pub use reach::{PathJoints, ReachParams, ReachSetup, TargetReach, plan_reach, reach_target, shot_joints};
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
 pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

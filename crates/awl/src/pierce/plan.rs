@@ -67,15 +67,23 @@ pub struct PlannedTarget {
     pub poses: ToolPoses,
     /// How far off the point and the axis may be.
     pub prediction: Prediction,
-    /// Why the tool must not go to this target (`None`: it may); no-go targets are left out of
-    /// the robot programs.
+    /// Why the predicted error exceeds the tolerance (`None`: it does not).
     pub refusal: Option<String>,
+    /// Whether the arm reaches it ([`crate::pierce::reach::plan_reach`]); `None`: not checked.
+    pub reach: Option<crate::pierce::reach::TargetReach>,
 }
 
 impl PlannedTarget {
+    /// Why the tool must not go to this target: its predicted error exceeds the tolerance, or the
+    /// arm does not reach it (`None`: it may go). No-go targets are left out of the programs.
+    pub fn no_go_reason(&self) -> Option<String> {
+        let why: Vec<String> = self.refusal.iter().cloned().chain(self.reach_refusal()).collect();
+        (!why.is_empty()).then(|| why.join("; "))
+    }
+
     /// Whether the tool may go to this target.
     pub fn go(&self) -> bool {
-        self.refusal.is_none()
+        self.no_go_reason().is_none()
     }
 }
 
@@ -98,6 +106,8 @@ pub struct PiercePlan {
     pub tolerance: Tolerance,
     /// The probability of the predicted bounds.
     pub confidence: f64,
+    /// The robot the targets' reach was checked for; `None`: not checked.
+    pub reach: Option<crate::pierce::reach::ReachSetup>,
 }
 
 /// Places `specs` on the model `surface` (failing before any image is read when one is off the
@@ -152,7 +162,7 @@ pub fn plan(
             };
             let prediction = predict(&base_from_model, &located.base_from_model_covariance, &geometry, &params.predict);
             let refusal = params.tolerance.refusal(&prediction);
-            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses, prediction, refusal })
+            Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses, prediction, refusal, reach: None })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(PiercePlan {
@@ -164,5 +174,6 @@ pub fn plan(
         warnings,
         tolerance: params.tolerance,
         confidence: params.predict.confidence,
+        reach: None,
     })
 }

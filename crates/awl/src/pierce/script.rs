@@ -2,8 +2,18 @@
 //!
 //! Poses are the tool centre point in the robot base frame: set the controller's TCP to the tip of
 //! the piercing tool before running. Per target: a linear move to approach, a slow one to pierce,
-//! and back out to retract (URScript `movel`; Techman `Line("CAP", ...)`). A no-go target
-//! ([`crate::pierce::PlannedTarget::refusal`]) is left out.
+//! and back out to retract (URScript `movel`; Techman `Line("CAP", ...)`).
+//!
+//! When the plan's reach was checked ([`crate::pierce::reach`]), the programs set the TCP from
+//! `T_ee_tool` (URScript `set_tcp`, Techman `ChangeTCP`), move in joint space to the approach
+//! joints (`movej`, `PTP("JPP", ...)`, the configuration checked) and then linearly in and out
+//! along the spun tool poses; a target whose reach was refused is left out (a comment says why in
+//! the URScript; [`crate::pierce::PlannedTarget::reach_refusal`]). So is a target whose predicted
+//! error exceeds the tolerance ([`crate::pierce::PlannedTarget::no_go_reason`]).
+//!
+//! The URScript program is a single `def ... end` (the form UR's primary / secondary client
+//! interfaces run, every other line indented): the controller runs it when it arrives there; load it
+//! as a script file otherwise.
 
 use std::fmt::Write as _;
 
@@ -21,11 +31,24 @@ pub struct ScriptSpeeds {
     pub pierce_m_s: f64,
     /// Tool acceleration, m/s^2. Default 0.5.
     pub accel_m_s2: f64,
+    /// Joint speed of the joint-space move to the approach (URScript `movej`), rad/s. Default 0.5.
+    pub joint_rad_s: f64,
+    /// Joint acceleration of that move, rad/s^2. Default 1.0.
+    pub joint_rad_s2: f64,
+    /// Techman `PTP` speed, percent of the arm's top joint speed. Default 20.
+    pub tm_joint_percent: u32,
 }
 
 impl Default for ScriptSpeeds {
     fn default() -> Self {
-        Self { travel_m_s: 0.10, pierce_m_s: 0.02, accel_m_s2: 0.5 }
+        Self {
+            travel_m_s: 0.10,
+            pierce_m_s: 0.02,
+            accel_m_s2: 0.5,
+            joint_rad_s: 0.5,
+            joint_rad_s2: 1.0,
+            tm_joint_percent: 20,
+        }
     }
 }
 
@@ -44,24 +67,42 @@ fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
 pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> String {
     let mut s = String::new();
-    let go = plan.targets.iter().filter(|t| t.go()).count();
-    let _ = writeln!(s, "# awl pierce: {go} of {} target(s) from {source}", plan.targets.len());
-    let _ =
-        writeln!(s, "# TCP = the tip of the piercing tool; poses in the robot base frame (metres, rotation vectors)");
     let _ = writeln!(s, "def awl_pierce():");
+    let go = plan.targets.iter().filter(|t| t.go()).count();
+    let _ = writeln!(s, "  # awl pierce: {go} of {} target(s) from {source}", plan.targets.len());
+    let _ =
+        writeln!(s, "  # TCP = the tip of the piercing tool; poses in the robot base frame (metres, rotation vectors)");
+    if let Some(r) = &plan.reach {
+        let _ = writeln!(s, "  # reach checked for {}: T_ee_tool as the TCP", r.arm);
+        let _ = writeln!(s, "  set_tcp({})", ur(&r.ee_from_tool));
+    }
     for (i, t) in plan.targets.iter().enumerate() {
-        if let Some(why) = &t.refusal {
-            let _ = writeln!(s, "  # target {i}: {} left out: {why}", t.surface.spec);
-            continue;
-        }
         let p = t.p_base;
         let _ = writeln!(s, "  # target {i}: {} -> p_base ({:.4}, {:.4}, {:.4}) m", t.surface.spec, p.x, p.y, p.z);
-        for (pose, v) in strokes(&t.poses, speeds) {
-            let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
+        if let Some(why) = t.no_go_reason() {
+            let _ = writeln!(s, "  # left out: {}", why.replace('\n', " "));
+            continue;
+        }
+        match t.reach.as_ref().and_then(|r| r.joints.zip(r.tool_poses)) {
+            Some((q, poses)) => {
+                let j = q.approach;
+                let _ = writeln!(
+                    s,
+                    "  movej([{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}], a={}, v={})",
+                    j[0], j[1], j[2], j[3], j[4], j[5], speeds.joint_rad_s2, speeds.joint_rad_s
+                );
+                for (pose, v) in &strokes(&poses, speeds)[1..] {
+                    let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
+                }
+            }
+            None => {
+                for (pose, v) in strokes(&t.poses, speeds) {
+                    let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
+                }
+            }
         }
     }
     let _ = writeln!(s, "end");
-    let _ = writeln!(s, "awl_pierce()");
     s
 }
 
@@ -87,16 +128,41 @@ fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
     )
 }
 
+fn tm_ptp(q: &crate::kinematics::Joints, speeds: &ScriptSpeeds) -> String {
+    let d = q.map(f64::to_degrees);
+    let accel_ms = (speeds.joint_rad_s / speeds.joint_rad_s2 * 1e3).round().max(1.0);
+    // joint angles in degrees, speed percent, time to top speed in ms, no blending, precise
+    format!(
+        "PTP(\"JPP\",{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{accel_ms},0,true)",
+        d[0], d[1], d[2], d[3], d[4], d[5], speeds.tm_joint_percent
+    )
+}
+
 /// The Techman listen-node packets of `plan` (module docs): per target, one `$TMSCT` packet (id
 /// `awl<i>`) that selects the robot base and moves approach -> pierce -> retract, then one that
-/// leaves the listen node (`ScriptExit()`). Send them in order to the listen node (TCP port 5890),
-/// each after the previous one's reply.
+/// leaves the listen node (`ScriptExit()`). With a checked reach: the TCP set from `T_ee_tool`,
+/// a joint move to the approach joints, then the two linear moves; refused targets left out.
+/// Send them in order to the listen node (TCP port 5890), each after the previous one's reply.
 pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
     let mut out = String::new();
-    for (i, t) in plan.targets.iter().enumerate().filter(|(_, t)| t.go()) {
-        let moves = strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2));
-        let script = format!("ChangeBase(\"RobotBase\")\r\n{}", moves.join("\r\n"));
-        out.push_str(&tmsct_packet(&format!("awl{i}"), &script));
+    for (i, t) in plan.targets.iter().enumerate() {
+        if !t.go() {
+            continue;
+        }
+        let mut lines = vec!["ChangeBase(\"RobotBase\")".to_string()];
+        match (plan.reach.as_ref(), t.reach.as_ref().and_then(|r| r.joints.zip(r.tool_poses))) {
+            (Some(r), Some((q, poses))) => {
+                let v = tm_pose(&r.ee_from_tool);
+                lines.push(format!(
+                    "ChangeTCP({:.3},{:.3},{:.3},{:.4},{:.4},{:.4})",
+                    v[0], v[1], v[2], v[3], v[4], v[5]
+                ));
+                lines.push(tm_ptp(&q.approach, speeds));
+                lines.extend(strokes(&poses, speeds)[1..].iter().map(|(pose, v)| tm_line(pose, *v, speeds.accel_m_s2)));
+            }
+            _ => lines.extend(strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2))),
+        }
+        out.push_str(&tmsct_packet(&format!("awl{i}"), &lines.join("\r\n")));
     }
     out.push_str(&tmsct_packet("awlexit", "ScriptExit()"));
     out

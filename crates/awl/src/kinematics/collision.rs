@@ -1,0 +1,394 @@
+//! Collision checks of the arm's tool end along a path: the tool (a cylinder of a given radius and
+//! length along the tool axis), the flange, the camera body and the three wrist links, each
+//! approximated by a capsule (a segment and a radius) placed by forward kinematics
+//! ([`Arm::link_frames`]), against the workpiece's model (points, base frame) and the floor plane.
+//! Distances are parry3d's capsule-point distances (`parry3d_f64::shape::Capsule`); the floor is a
+//! half space (the capsule's lowest end point above it, less the radius).
+//!
+//! The model's points within [`CollisionParams::exclude_radius_m`] of the target are left out (the
+//! tool touches the surface there by design). Pure: no I/O.
+
+use nalgebra::{Isometry3, Point3};
+use parry3d_f64::math::Vector as PVector;
+use parry3d_f64::query::PointQuery;
+use parry3d_f64::shape::Capsule;
+
+use super::line::LineReport;
+use super::{Arm, Joints};
+use crate::error::{Error, Result};
+use crate::spatial::KdIndex;
+use crate::workpiece::file::FloorPlane;
+
+/// A part of the arm's tool end that collision checks place a capsule on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Link {
+    /// The piercing tool: from the tool centre point back along the tool's z axis.
+    Tool,
+    /// The flange disc.
+    Flange,
+    /// The eye-in-hand camera's body (needs `T_ee_camera`).
+    Camera,
+    /// Wrist 1: DH frame 3 to frame 4 (joint 4's housing).
+    Wrist1,
+    /// Wrist 2: DH frame 4 to frame 5.
+    Wrist2,
+    /// Wrist 3: DH frame 5 to frame 6 (up to the flange).
+    Wrist3,
+}
+
+impl Link {
+    /// The name in messages and plan.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            Link::Tool => "tool",
+            Link::Flange => "flange",
+            Link::Camera => "camera",
+            Link::Wrist1 => "wrist 1",
+            Link::Wrist2 => "wrist 2",
+            Link::Wrist3 => "wrist 3",
+        }
+    }
+}
+
+/// The sizes of the capsules, metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyParams {
+    /// The tool's radius. Default 0.004.
+    pub tool_radius_m: f64,
+    /// The tool's length from its tip back along its z axis; `None`: the distance from the flange's
+    /// origin to the tool centre point (a straight tool on the flange). Default `None`.
+    pub tool_length_m: Option<f64>,
+    /// The flange disc's radius. Default 0.032 (UR e-Series: 63 mm across).
+    pub flange_radius_m: f64,
+    /// The flange disc's thickness behind the flange face. Default 0.01.
+    pub flange_thickness_m: f64,
+    /// `T_ee_camera` (ee = flange): where the camera body is; `None`: no camera checked.
+    pub ee_from_camera: Option<Isometry3<f64>>,
+    /// Half the camera body's width along the camera's x axis. Default 0.045 (a 90 mm RGB-D camera).
+    pub camera_half_width_m: f64,
+    /// The camera body's radius. Default 0.0125.
+    pub camera_radius_m: f64,
+    /// How far the body's axis sits behind the optical centre, along -z. Default 0.0125.
+    pub camera_behind_m: f64,
+    /// The wrist links' radius. Default 0.045.
+    pub wrist_radius_m: f64,
+}
+
+impl Default for BodyParams {
+    fn default() -> Self {
+        Self {
+            tool_radius_m: 0.004,
+            tool_length_m: None,
+            flange_radius_m: 0.032,
+            flange_thickness_m: 0.01,
+            ee_from_camera: None,
+            camera_half_width_m: 0.045,
+            camera_radius_m: 0.0125,
+            camera_behind_m: 0.0125,
+            wrist_radius_m: 0.045,
+        }
+    }
+}
+
+impl BodyParams {
+    /// Checks the sizes.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field for a negative or non-finite size.
+    pub fn validate(&self) -> Result<()> {
+        let sizes = [
+            ("tool_radius_m", self.tool_radius_m),
+            ("tool_length_m", self.tool_length_m.unwrap_or(0.0)),
+            ("flange_radius_m", self.flange_radius_m),
+            ("flange_thickness_m", self.flange_thickness_m),
+            ("camera_half_width_m", self.camera_half_width_m),
+            ("camera_radius_m", self.camera_radius_m),
+            ("camera_behind_m", self.camera_behind_m),
+            ("wrist_radius_m", self.wrist_radius_m),
+        ];
+        for (name, v) in sizes {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(name, format!("must be a non-negative length in metres, got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One capsule in the base frame: the segment `a`-`b` swept by a ball of `radius_m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkCapsule {
+    /// Which part.
+    pub link: Link,
+    /// One end, base frame, metres.
+    pub a: Point3<f64>,
+    /// The other end.
+    pub b: Point3<f64>,
+    /// Radius, metres.
+    pub radius_m: f64,
+}
+
+/// The capsules of the tool end at joints `q`, base frame. The tool ends `radius` short of its tip
+/// so that the capsule's tip is the tool's.
+pub fn capsules(arm: &Arm, q: &Joints, ee_from_tool: &Isometry3<f64>, body: &BodyParams) -> Vec<LinkCapsule> {
+    let frames = arm.link_frames(q);
+    let flange = frames[7];
+    let tool = flange * ee_from_tool;
+    let tool_length = body.tool_length_m.unwrap_or_else(|| ee_from_tool.translation.vector.norm());
+    let tip_back = body.tool_radius_m.min(tool_length);
+    let mut out = vec![
+        LinkCapsule {
+            link: Link::Tool,
+            a: tool * Point3::new(0.0, 0.0, -tip_back),
+            b: tool * Point3::new(0.0, 0.0, -tool_length),
+            radius_m: body.tool_radius_m,
+        },
+        LinkCapsule {
+            link: Link::Flange,
+            a: flange * Point3::origin(),
+            b: flange * Point3::new(0.0, 0.0, -body.flange_thickness_m),
+            radius_m: body.flange_radius_m,
+        },
+    ];
+    if let Some(x) = &body.ee_from_camera {
+        let camera = flange * x;
+        let (w, z) = (body.camera_half_width_m, -body.camera_behind_m);
+        out.push(LinkCapsule {
+            link: Link::Camera,
+            a: camera * Point3::new(-w, 0.0, z),
+            b: camera * Point3::new(w, 0.0, z),
+            radius_m: body.camera_radius_m,
+        });
+    }
+    for (link, i) in [(Link::Wrist1, 3), (Link::Wrist2, 4), (Link::Wrist3, 5)] {
+        out.push(LinkCapsule {
+            link,
+            a: frames[i] * Point3::origin(),
+            b: frames[i + 1] * Point3::origin(),
+            radius_m: body.wrist_radius_m,
+        });
+    }
+    out
+}
+
+/// What a capsule was closest to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Against {
+    /// The workpiece's model (its points outside the target's zone).
+    Model,
+    /// The floor plane.
+    Floor,
+}
+
+impl Against {
+    /// The name in messages and plan.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            Against::Model => "model",
+            Against::Floor => "floor",
+        }
+    }
+}
+
+/// The smallest distance found, and between what.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Clearance {
+    /// Distance from the capsule's surface, metres (0 when a model point is inside it; negative when
+    /// the capsule is below the floor).
+    pub distance_m: f64,
+    /// The arm's part.
+    pub link: Link,
+    /// What it is near.
+    pub against: Against,
+}
+
+impl Clearance {
+    fn keep_smaller(best: &mut Option<Clearance>, c: Clearance) {
+        if best.is_none_or(|b| c.distance_m < b.distance_m) {
+            *best = Some(c);
+        }
+    }
+}
+
+/// Settings of the collision check.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CollisionParams {
+    /// Model points within this of the target are left out, metres. Default 0.025.
+    pub exclude_radius_m: f64,
+    /// A capsule nearer than this to the model or the floor is a collision, metres. Default 0.003
+    /// (the model's noise and the capsules' approximation).
+    pub min_clearance_m: f64,
+    /// Model points farther than this from a capsule are not looked at: a clearance beyond it is
+    /// reported as none found, metres. Default 0.05.
+    pub reach_m: f64,
+}
+
+impl Default for CollisionParams {
+    fn default() -> Self {
+        Self { exclude_radius_m: 0.025, min_clearance_m: 0.003, reach_m: 0.05 }
+    }
+}
+
+impl CollisionParams {
+    /// Checks the distances.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field for a negative or non-finite distance (or a zero reach).
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [("exclude_radius_m", self.exclude_radius_m), ("min_clearance_m", self.min_clearance_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(name, format!("must be a non-negative length in metres, got {v}")));
+            }
+        }
+        if !(self.reach_m.is_finite() && self.reach_m > self.min_clearance_m) {
+            return Err(Error::invalid(
+                "reach_m",
+                format!("must be finite and above min_clearance_m {} m, got {}", self.min_clearance_m, self.reach_m),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The workpiece as an obstacle: its model's points and the floor, base frame.
+pub struct Obstacles {
+    points: Vec<Point3<f32>>,
+    index: KdIndex,
+    floor: Option<FloorPlane>,
+}
+
+impl Obstacles {
+    /// The obstacles from the model's points and the floor plane, both in the model frame, placed
+    /// by `base_from_model`.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a non-finite point (from the index).
+    pub fn new(
+        model_points: &[Point3<f32>],
+        floor: Option<FloorPlane>,
+        base_from_model: &Isometry3<f64>,
+    ) -> Result<Self> {
+        let points: Vec<Point3<f32>> =
+            model_points.iter().map(|p| (base_from_model * p.cast::<f64>()).cast::<f32>()).collect();
+        let index = KdIndex::new(&points)?;
+        // n_m . p_m + d = 0 with p_m = R^T (p_b - t): (R n_m) . p_b + d - (R n_m) . t = 0
+        let floor = floor.and_then(|f| {
+            let n = base_from_model.rotation * f.normal;
+            FloorPlane::new(n, f.offset_m - n.dot(&base_from_model.translation.vector))
+        });
+        Ok(Self { points, index, floor })
+    }
+
+    /// The number of model points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether there is no model point.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The floor in the base frame, if any.
+    pub fn floor(&self) -> Option<&FloorPlane> {
+        self.floor.as_ref()
+    }
+
+    /// The smallest clearance of `capsules` to the model's points (those farther than
+    /// `params.exclude_radius_m` from `target`, within `params.reach_m` of a capsule) and to the
+    /// floor (always). `None` when nothing is within the reach and there is no floor.
+    pub fn clearance(
+        &self,
+        capsules: &[LinkCapsule],
+        target: &Point3<f64>,
+        params: &CollisionParams,
+    ) -> Option<Clearance> {
+        let mut best: Option<Clearance> = None;
+        let exclude_sq = params.exclude_radius_m * params.exclude_radius_m;
+        for c in capsules {
+            if let Some(floor) = &self.floor {
+                let d = floor.height(&c.a).min(floor.height(&c.b)) - c.radius_m;
+                Clearance::keep_smaller(&mut best, Clearance { distance_m: d, link: c.link, against: Against::Floor });
+            }
+            let mid = nalgebra::center(&c.a, &c.b);
+            let half = (c.b - c.a).norm() * 0.5;
+            let search = half + c.radius_m + params.reach_m;
+            let shape = Capsule::new(PVector::new(c.a.x, c.a.y, c.a.z), PVector::new(c.b.x, c.b.y, c.b.z), c.radius_m);
+            let near = self.index.within(&mid.cast::<f32>(), search as f32);
+            let mut smallest = f64::INFINITY;
+            for n in near {
+                let p = self.points[n.index as usize].cast::<f64>();
+                if (p - target).norm_squared() <= exclude_sq {
+                    continue;
+                }
+                smallest = smallest.min(shape.distance_to_local_point(PVector::new(p.x, p.y, p.z), true));
+            }
+            if smallest <= params.reach_m {
+                Clearance::keep_smaller(
+                    &mut best,
+                    Clearance { distance_m: smallest, link: c.link, against: Against::Model },
+                );
+            }
+        }
+        best
+    }
+
+    /// Checks every point of a passed path (`report` of [`super::check_path`]) with the tool on
+    /// the flange at `ee_from_tool`: the smallest clearance along it and the first collision.
+    pub fn check_path(
+        &self,
+        arm: &Arm,
+        report: &LineReport,
+        ee_from_tool: &Isometry3<f64>,
+        body: &BodyParams,
+        target: &Point3<f64>,
+        params: &CollisionParams,
+    ) -> PathClearance {
+        let mut out = PathClearance { min: None, collision: None };
+        for sample in &report.samples {
+            let Some(c) = self.clearance(&capsules(arm, &sample.q, ee_from_tool, body), target, params) else {
+                continue;
+            };
+            if c.distance_m < params.min_clearance_m && out.collision.is_none() {
+                out.collision = Some(Collision { segment: sample.segment, s: sample.s, clearance: c });
+            }
+            Clearance::keep_smaller(&mut out.min, c);
+        }
+        out
+    }
+}
+
+/// Where a path first came too near.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Collision {
+    /// The segment of the path (0 = its first pose to its second; approach -> pierce for a target).
+    pub segment: usize,
+    /// Position along it, 0 to 1.
+    pub s: f64,
+    /// The clearance there.
+    pub clearance: Clearance,
+}
+
+impl std::fmt::Display for Collision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.clearance;
+        write!(
+            f,
+            "collision: the {} is {:.1} mm from the {} at {:.0} % of segment {}",
+            c.link.name(),
+            c.distance_m * 1e3,
+            c.against.name(),
+            self.s * 1e2,
+            self.segment
+        )
+    }
+}
+
+/// The collision check of one path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathClearance {
+    /// The smallest clearance over the path (`None`: nothing within the reach, no floor).
+    pub min: Option<Clearance>,
+    /// The first point nearer than the minimum clearance, if any.
+    pub collision: Option<Collision>,
+}
