@@ -29,7 +29,7 @@ use serde_json::{Value, json};
 
 use crate::error::Result;
 use crate::io::write_atomic;
-use crate::pierce::{PiercePlan, quaternion_xyzw, ur_pose};
+use crate::pierce::{PiercePlan, check_for_robot, quaternion_xyzw, ur_pose};
 use crate::transform::rows_from_isometry;
 
 /// The format tag of plan.json.
@@ -137,12 +137,22 @@ pub fn plan_json(plan: &PiercePlan, sources: &PlanSources<'_>) -> Value {
     })
 }
 
-/// Writes plan.json atomically.
+/// The text of plan.json, once the plan passes [`check_for_robot`].
 ///
 /// # Errors
-/// [`crate::Error::Io`] when the file cannot be written.
-pub fn write_plan(path: &Path, plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<()> {
+/// [`crate::Error::Invalid`] from [`check_for_robot`]: no plan file holds a non-finite or
+/// out-of-range pose.
+pub fn plan_text(plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<String> {
+    check_for_robot(plan)?;
     let mut text = serde_json::to_string_pretty(&plan_json(plan, sources)).unwrap_or_default();
     text.push('\n');
-    write_atomic(path, text.as_bytes())
+    Ok(text)
+}
+
+/// Writes plan.json atomically ([`plan_text`]).
+///
+/// # Errors
+/// As [`plan_text`]; [`crate::Error::Io`] when the file cannot be written.
+pub fn write_plan(path: &Path, plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<()> {
+    write_atomic(path, plan_text(plan, sources)?.as_bytes())
 }

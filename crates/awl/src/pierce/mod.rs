@@ -7,10 +7,12 @@
 
 pub mod locate;
 pub mod plan;
+pub mod safety;
 pub mod script;
 pub mod tool;
 
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
+pub use safety::check_for_robot;
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
-pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};
+pub use tool::{MAX_DEPTH_M, MAX_REACH_M, Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

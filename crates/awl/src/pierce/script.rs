@@ -8,7 +8,9 @@ use std::fmt::Write as _;
 
 use nalgebra::Isometry3;
 
+use crate::error::{Error, Result};
 use crate::pierce::plan::PiercePlan;
+use crate::pierce::safety::check_for_robot;
 use crate::pierce::tool::{ToolPoses, tm_pose, ur_pose};
 
 /// Speeds of the generated program.
@@ -40,8 +42,33 @@ fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f
     [(&poses.approach, travel), (&poses.pierce, slow), (&poses.retract, slow)]
 }
 
+impl ScriptSpeeds {
+    /// Checks the speeds: finite and positive, tool speeds at most 1 m/s, acceleration at most 5 m/s^2.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v, max) in [
+            ("travel_m_s", self.travel_m_s, 1.0),
+            ("pierce_m_s", self.pierce_m_s, 1.0),
+            ("accel_m_s2", self.accel_m_s2, 5.0),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return Err(Error::invalid(name, format!("must be in (0, {max}], got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
-pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> String {
+///
+/// # Errors
+/// [`Error::Invalid`] from [`check_for_robot`] or [`ScriptSpeeds::validate`]: no program is made
+/// from a non-finite or out-of-range value.
+pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Result<String> {
+    check_for_robot(plan)?;
+    speeds.validate()?;
     let mut s = String::new();
     let _ = writeln!(s, "# awl pierce: {} target(s) from {source}", plan.targets.len());
     let _ =
@@ -56,7 +83,7 @@ pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Strin
     }
     let _ = writeln!(s, "end");
     let _ = writeln!(s, "awl_pierce()");
-    s
+    Ok(s)
 }
 
 /// One Techman listen-node packet: `$TMSCT,<length>,<id>,<script>,*<checksum>` and CR LF, where the
@@ -85,7 +112,12 @@ fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
 /// `awl<i>`) that selects the robot base and moves approach -> pierce -> retract, then one that
 /// leaves the listen node (`ScriptExit()`). Send them in order to the listen node (TCP port 5890),
 /// each after the previous one's reply.
-pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
+///
+/// # Errors
+/// As [`urscript`].
+pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> Result<String> {
+    check_for_robot(plan)?;
+    speeds.validate()?;
     let mut out = String::new();
     for (i, t) in plan.targets.iter().enumerate() {
         let moves = strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2));
@@ -93,7 +125,7 @@ pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
         out.push_str(&tmsct_packet(&format!("awl{i}"), &script));
     }
     out.push_str(&tmsct_packet("awlexit", "ScriptExit()"));
-    out
+    Ok(out)
 }
 
 #[cfg(test)]
