@@ -11,6 +11,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
     if let Some(n) = threads {
         anyhow::ensure!(n > 0, "--threads must be at least 1");
+        let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
+        let max = (4 * cores).max(16);
+        anyhow::ensure!(
+            n <= max,
+            "--threads {n} is more than {max} (4x the {cores} cores here, at least 16): each thread holds its own \
+             buffers; give at most {max}"
+        );
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("cannot set up the thread pool")?;
     }
     Ok(())

@@ -90,6 +90,7 @@ fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
         specs.extend(read_targets(path)?);
     }
     anyhow::ensure!(!specs.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
+    awl::workpiece::check_target_count(specs.len()).map_err(|m| anyhow::anyhow!("--target / --targets-file: {m}"))?;
     Ok(specs)
 }
 

@@ -23,12 +23,12 @@ fn check_isometry(iso: &Isometry3<f64>, what: impl FnOnce() -> String) -> Result
     if (norm - 1.0).abs() > UNIT_TOLERANCE {
         return Err(Error::invalid(what(), format!("not a rigid transform (rotation quaternion norm {norm})")));
     }
-    let d = iso.translation.vector.norm();
+    let d = iso.translation.vector.amax();
     if d > MAX_POSE_TRANSLATION_M {
         return Err(Error::invalid(
             what(),
             format!(
-                "translation of {d:.3e} m, beyond the {MAX_POSE_TRANSLATION_M} m a flange or a tag is from the robot \
+                "a translation coordinate of {d:.3e} m, beyond the {MAX_POSE_TRANSLATION_M} m a flange or a tag is from the robot \
                  base or the camera: poses are in metres (not millimetres); check this pose"
             ),
         ));

@@ -220,14 +220,15 @@ struct RawScan {
 /// Parses a 4x4 pose field, naming the file and the field when it is not rigid.
 pub(crate) fn pose_field(path: &Path, field: &str, rows: &Rows) -> Result<Isometry3<f64>> {
     let pose = isometry_from_rows(rows).map_err(|m| Error::field(path, field, m))?;
-    let d = pose.translation.vector.norm();
+    // the largest coordinate (a norm would overflow to infinity for 1e300)
+    let d = pose.translation.vector.amax();
     if d > MAX_TRANSLATION_M {
         return Err(Error::field(
             path,
             field,
             format!(
-                "translation of {d:.3e} m, beyond the {MAX_TRANSLATION_M} m any awl frame spans: poses are in metres \
-                 (not millimetres)"
+                "a translation coordinate of {d:.3e} m, beyond the {MAX_TRANSLATION_M} m any awl frame spans: poses \
+                 are in metres (not millimetres)"
             ),
         ));
     }
@@ -278,6 +279,8 @@ pub(crate) fn intrinsics_from_parts(path: &Path, prefix: &str, raw: &RawIntrinsi
     if raw.width == 0 || raw.height == 0 {
         return Err(Error::field(path, format!("{prefix}width"), "image size must be positive"));
     }
+    crate::io::image::check_image_pixels(u64::from(raw.width), u64::from(raw.height))
+        .map_err(|m| Error::field(path, format!("{prefix}width"), m))?;
     let mut distortion = [0.0; 5];
     if let Some(d) = &raw.distortion {
         if d.len() > 5 || d.iter().any(|k| !k.is_finite()) {
