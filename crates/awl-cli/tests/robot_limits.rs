@@ -158,7 +158,7 @@ fn pierce_refuses_absurd_strokes_and_every_writer_refuses_an_absurd_pose() {
         }
     }
     let fast = ScriptSpeeds { travel_m_s: 5.0, ..speeds };
-    assert!(urscript(&good, &fast, "t").unwrap_err().to_string().contains("travel_m_s"));
+    assert!(urscript(&good, &fast, "t").expect_err("5 m/s refused").to_string().contains("travel_m_s"));
 }
 
 #[test]
