@@ -3,7 +3,7 @@
 //! PNG headers (the 640 x (2^31 - 1) and 32768 x 32768, each in a file of a few hundred
 //! bytes, refused before a pixel buffer exists: the run's peak memory stays that of a normal run),
 //! a scan.json camera of 100000 x 100000, RANSAC and ICP iteration counts in a fuse config,
-//! `--threads 10000`, 150 k targets.
+//! `--threads 10000`, 150 k targets; a NaN point named with its file (`awl register`, `awl evaluate`).
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -162,4 +162,19 @@ fn images_cameras_configs_threads_and_targets_are_bounded_before_allocating() {
     }
     refused(&awl(&args), &["--target", "1001 targets"]);
     assert!(!plan.exists());
+
+    // a NaN point in a cloud is named with its file, not as `k-d tree: point 0 is not finite`
+    let ply = |rows: &str| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nend_header\n{rows}"
+        )
+    };
+    let (nan, good) = (dir.path().join("nan.ply"), dir.path().join("good.ply"));
+    std::fs::write(&nan, ply("0 0 0\n1 0 0\nnan 1 0\n0 0 1\n")).expect("write");
+    std::fs::write(&good, ply("0 0 0\n1 0 0\n0 1 0\n0 0 1\n")).expect("write");
+    let t = dir.path().join("T.json");
+    let out = awl(&["register", s(&nan), s(&good), "-o", s(&t)]);
+    refused(&out, &[s(&nan), "point 2 is not finite", "remove or fix"]);
+    let out = awl(&["evaluate", s(&nan), "--cad", s(&good), "-o", s(&dir.path().join("ev"))]);
+    refused(&out, &[s(&nan), "point 2 is not finite"]);
 }

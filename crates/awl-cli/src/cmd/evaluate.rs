@@ -82,6 +82,7 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS).check()?;
     let model = read_cloud(&args.model)?;
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
+    model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
     let cad = read_mesh(&args.cad)?;
     let (init, source) = match (&args.init, &args.truth) {
         (Some(path), _) => (Some(read_transform(path, "T_object_model")?), Some(path)),

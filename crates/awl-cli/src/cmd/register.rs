@@ -49,6 +49,8 @@ fn read_init(path: &Path) -> anyhow::Result<Isometry3<f64>> {
 fn prepared(path: &Path) -> anyhow::Result<PointCloud> {
     let cloud = read_cloud(path)?;
     anyhow::ensure!(!cloud.is_empty(), "{}: the cloud is empty", path.display());
+    // a NaN or infinite point is named here, with the file, not deep in the k-d tree
+    cloud.validate(&path.display().to_string()).context("remove or fix the non-finite points")?;
     Ok(with_normals(&cloud, &NormalParams::default(), None)?)
 }
 
