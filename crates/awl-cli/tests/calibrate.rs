@@ -142,7 +142,7 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
     assert!(t.contains("(inliers)") && t.contains("(all poses)") && t.contains("1-sigma: translation"), "{t}");
     assert_eq!(d["params"]["outlier_floor_mm"], serde_json::json!(2.0));
 
-    let t = ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-floor-mm", "100"]));
+    let t = ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-floor-mm", "100", "--force"]));
     let d = read_json(&out);
     let (inliers, all) =
         (d["rms_translation_mm"].as_f64().expect("rms"), d["rms_all_translation_mm"].as_f64().expect("rms"));
@@ -156,7 +156,7 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
         d["warnings"].as_array().expect("warnings").iter().any(|w| w["diagnosis"] == "translation_undetermined");
     assert!(warned && t.contains("warning: translation not determined"), "{t}");
     // the factor alone: 100x the median keeps it too
-    ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-factor", "100"]));
+    ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-factor", "100", "--force"]));
     assert_eq!(read_json(&out)["rejected"], serde_json::json!([]));
 
     std::fs::remove_file(&out).expect("rm");
@@ -168,7 +168,7 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
         ("--inverted-fit-factor", "0.5", ">= 1"),
     ] {
         let arg = format!("{flag}={value}");
-        let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, &arg]);
+        let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, &arg, "--force"]);
         let t = text(&r);
         assert!(!r.status.success() && t.contains(&format!("{flag}: ")) && t.contains(says), "{arg}: {t}");
         assert!(!out.exists(), "{arg}: no output on a bad flag");
@@ -183,7 +183,7 @@ fn inverted_poses_are_refused_unless_allowed_and_normal_captures_warn_of_nothing
     // normal captures, the --write-simulated default of 15 poses: no warning on seeds 1-4
     for seed in 1..=4 {
         let (path, _) = simulated(dir.path(), &format!("clean-{seed}.json"), 15, seed);
-        let r = awl(&["calibrate", "hand-eye", "--poses", path.to_str().expect("utf-8"), "-o", o]);
+        let r = awl(&["calibrate", "hand-eye", "--poses", path.to_str().expect("utf-8"), "-o", o, "--force"]);
         let t = ok(&r);
         assert!(!t.contains("warning"), "seed {seed}: {t}");
         let d = read_json(&out);
@@ -203,13 +203,13 @@ fn inverted_poses_are_refused_unless_allowed_and_normal_captures_warn_of_nothing
     std::fs::write(&poses, doc.to_string()).expect("write");
     let p = poses.to_str().expect("utf-8");
     std::fs::remove_file(&out).expect("rm");
-    let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o]);
+    let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--force"]);
     let t = text(&r);
     println!("{t}");
     assert!(!r.status.success(), "{t}");
     assert!(t.contains("poses[*].T_base_ee") && t.contains("T_ee_base") && t.contains("--allow-inverted-fit"), "{t}");
     assert!(!out.exists(), "no output on refusal");
-    let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--allow-inverted-fit"]);
+    let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--allow-inverted-fit", "--force"]);
     let t = ok(&r);
     let d = read_json(&out);
     assert_eq!(d["warnings"][0]["diagnosis"], "inverted_convention", "{}", d["warnings"]);

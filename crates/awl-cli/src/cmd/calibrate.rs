@@ -10,11 +10,12 @@ use awl::handeye::{
 };
 use awl::io::capture::read_capture;
 use awl::io::handeye::{read_poses, write_poses};
+use awl::io::outputs::OutputCheck;
 use awl::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use awl::transform::rows_from_isometry;
 use serde_json::json;
 
-use super::common::{refuse_overwriting_inputs, write_json};
+use super::common::write_json;
 
 /// Arguments of `awl calibrate`.
 #[derive(clap::Args)]
@@ -77,6 +78,9 @@ pub struct HandEyeArgs {
     #[arg(long, requires = "write_simulated")]
     pub truth: Option<PathBuf>,
     /// Rejection thresholds and diagnosis limits.
+    /// Replace earlier output files (the same flag in every command).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub tuning: HandEyeTuning,
 }
@@ -126,6 +130,10 @@ pub struct HandEyeTuning {
     /// Accept poses that look inverted (a warning instead of the refusal).
     #[arg(long)]
     pub allow_inverted_fit: bool,
+    /// The most poses (views found) a calibration takes: every pose pair is used, memory and time grow
+    /// with the square of the count.
+    #[arg(long, default_value_t = HandEyeParams::default().max_poses)]
+    pub max_poses: usize,
 }
 
 impl HandEyeTuning {
@@ -148,6 +156,7 @@ impl HandEyeTuning {
             min_noise_mm: self.min_noise_mm,
             inverted_fit_factor: self.inverted_fit_factor,
             allow_inverted_fit: self.allow_inverted_fit,
+            max_poses: self.max_poses,
         };
         match params.validate() {
             Ok(()) => Ok(params),
@@ -165,11 +174,16 @@ pub fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
 }
 
 fn write_simulated(args: &HandEyeArgs, path: &Path) -> anyhow::Result<()> {
+    let mut check = OutputCheck::new(args.force);
+    check.output_file(path, "--write-simulated");
+    if let Some(truth) = &args.truth {
+        check.output_file(truth, "--truth");
+    }
+    check.check()?;
     let params = CalibrationSimParams { count: args.count, seed: args.seed, ..CalibrationSimParams::default() };
     let capture = simulate_calibration(&params)?;
     write_poses(path, &capture.poses)?;
     if let Some(truth) = &args.truth {
-        anyhow::ensure!(truth != path, "{}: --truth must differ from --write-simulated", truth.display());
         let value = json!({
             "T_ee_camera": rows_from_isometry(&capture.ee_from_camera),
             "T_base_target": rows_from_isometry(&capture.base_from_target),
@@ -219,7 +233,7 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     };
     let params = handeye_params(args)?;
     let method = params.method;
-    refuse_overwriting_inputs(output, &[poses_path])?;
+    OutputCheck::new(args.force).input_file(poses_path, "--poses").output_file(output, "-o").check()?;
     let poses = read_poses(poses_path)?;
     let result =
         calibrate(&poses, &params).with_context(|| format!("{}: hand-eye calibration failed", poses_path.display()))?;
@@ -297,12 +311,16 @@ fn capture_json(dir: &Path, capture: &CaptureCalibration, params: &CaptureParams
 fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
     let Some(output) = &args.output else { anyhow::bail!("--output is required") };
     let capture = read_capture(dir)?;
-    let mut inputs = vec![capture.manifest_path()];
+    let mut check = OutputCheck::new(args.force);
+    // (the result may go beside the images, as a calibration's record: the folder itself is not refused)
+    check.input_file(&capture.manifest_path(), "the capture's scan.json");
     for v in &capture.views {
-        inputs.push(capture.dir.join(&v.color));
-        inputs.extend(v.depth.as_ref().map(|d| capture.dir.join(d)));
+        check.input_file(&capture.dir.join(&v.color), "a color image the capture names");
+        if let Some(d) = &v.depth {
+            check.input_file(&capture.dir.join(d), "a depth image the capture names");
+        }
     }
-    refuse_overwriting_inputs(output, &inputs.iter().map(PathBuf::as_path).collect::<Vec<_>>())?;
+    check.output_file(output, "-o").check()?;
     let params = CaptureParams { handeye: handeye_params(args)?, ..CaptureParams::default() };
     let calibration = calibrate_capture(&capture, &params)
         .with_context(|| format!("{}: hand-eye calibration from the capture failed", dir.display()))?;

@@ -1,4 +1,5 @@
-//! Helpers shared by subcommands: thread count, progress display, JSON output.
+//! Helpers shared by subcommands: thread count, progress display, JSON output, a non-empty output
+//! folder. The outputs' check against the inputs is the library's `awl::io::outputs::OutputCheck`.
 
 use std::io::IsTerminal;
 use std::path::Path;
@@ -10,6 +11,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
     if let Some(n) = threads {
         anyhow::ensure!(n > 0, "--threads must be at least 1");
+        let cores = std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get);
+        let max = (4 * cores).max(16);
+        anyhow::ensure!(
+            n <= max,
+            "--threads {n} is more than {max} (4x the {cores} cores here, at least 16): each thread holds its own \
+             buffers; give at most {max}"
+        );
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("cannot set up the thread pool")?;
     }
     Ok(())
@@ -32,19 +40,6 @@ pub fn stage_bar(quiet: bool) -> ProgressBar {
 pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(value)?;
     awl::io::write_atomic(path, text.as_bytes())?;
-    Ok(())
-}
-
-/// Refuses to write `output` when it is one of the `inputs` (same file after resolving links).
-pub fn refuse_overwriting_inputs(output: &Path, inputs: &[&Path]) -> anyhow::Result<()> {
-    let resolve = |p: &Path| std::fs::canonicalize(p).ok();
-    if let Some(out) = resolve(output) {
-        for input in inputs {
-            if resolve(input).as_deref() == Some(out.as_path()) {
-                anyhow::bail!("{}: refusing to overwrite an input file", output.display());
-            }
-        }
-    }
     Ok(())
 }
 

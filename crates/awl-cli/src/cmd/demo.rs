@@ -9,6 +9,7 @@ use std::time::Instant;
 use anyhow::Context;
 use awl::eval::{EvaluateParams, evaluate, trajectory_correction};
 use awl::io::mesh::read_mesh;
+use awl::io::outputs::OutputCheck;
 use awl::io::scan::read_scan;
 use awl::io::truth::read_truth;
 use awl::pipeline::FuseConfig;
@@ -55,14 +56,19 @@ pub struct DemoArgs {
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     set_threads(args.threads)?;
-    prepare_output(&args.output, args.force, &["fuse", "evaluate"])?;
+    prepare_output(&args.output, args.force, &[])?;
+    let (scan_dir, fuse_dir, eval_dir) =
+        (args.output.join("scan"), args.output.join("fuse"), args.output.join("evaluate"));
+    OutputCheck::new(args.force)
+        .output_folder(&scan_dir, "-o DIR/scan", super::simulate::SIMULATE_OUTPUTS)
+        .output_folder(&fuse_dir, "-o DIR/fuse", super::fuse::FUSE_OUTPUTS)
+        .output_folder(&eval_dir, "-o DIR/evaluate", super::evaluate::EVALUATE_OUTPUTS)
+        .check()?;
     let say = |line: String| {
         if !args.quiet {
             println!("{line}");
         }
     };
-    let (scan_dir, fuse_dir, eval_dir) =
-        (args.output.join("scan"), args.output.join("fuse"), args.output.join("evaluate"));
     let scene = match args.scene {
         DemoScene::Box => SceneKind::Box,
         DemoScene::Shell => SceneKind::Shell,

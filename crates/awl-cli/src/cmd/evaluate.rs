@@ -6,7 +6,8 @@ use anyhow::Context;
 use awl::eval::{EvaluateParams, Evaluation, evaluate};
 use awl::io::evaluation::{read_transform, write_evaluation};
 use awl::io::mesh::{read_cloud, read_mesh};
-use awl::io::report::write_report;
+use awl::io::outputs::{OutputCheck, StagedFolder};
+use awl::io::report::{REPORT_FILE, write_report};
 use awl::io::truth::read_truth;
 use awl::report_html::{PageParams, evaluate_page};
 
@@ -35,7 +36,13 @@ pub struct EvaluateArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Replace an earlier evaluation's output folder (the same flag in every command).
+    #[arg(long)]
+    pub force: bool,
 }
+
+/// The entries `awl evaluate` writes in its output folder (`--force` replaces a folder holding only these).
+pub const EVALUATE_OUTPUTS: &[&str] = &["summary.json", "errors.ply", "T_object_model.json", REPORT_FILE, "renders"];
 
 /// `MODEL vs CAD` with the files' names, for the page's title.
 pub fn subject(model: &Path, cad: &Path) -> String {
@@ -44,23 +51,38 @@ pub fn subject(model: &Path, cad: &Path) -> String {
 }
 
 /// Writes `summary.json`, `errors.ply`, `T_object_model.json`, `report.html` and its
-/// `renders/*.png` into `out_dir` (refusing to replace any of `inputs`); returns the page's path.
+/// `renders/*.png` as the folder `out_dir`, whole or not at all (a temporary sibling renamed into
+/// place); returns the page's path. The caller has checked `out_dir` against its inputs
+/// ([`OutputCheck`]).
 pub fn write_outputs(
     out_dir: &Path,
     evaluation: &Evaluation,
     inputs: &[&Path],
     subject: &str,
 ) -> anyhow::Result<PathBuf> {
-    write_evaluation(out_dir, evaluation, inputs)?;
     let page = evaluate_page(evaluation, subject, &PageParams::default())?;
-    Ok(write_report(out_dir, &page.page, &page.renders)?)
+    let staged = StagedFolder::begin(out_dir)?;
+    write_evaluation(staged.path(), evaluation, inputs)?;
+    write_report(staged.path(), &page.page, &page.renders)?;
+    staged.commit()?;
+    Ok(out_dir.join(REPORT_FILE))
 }
 
 /// Runs `awl evaluate`.
 pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
+    let mut check = OutputCheck::new(args.force);
+    check.input_file(&args.model, "MODEL").input_file(&args.cad, "--cad");
+    if let Some(init) = &args.init {
+        check.input_file(init, "--init");
+    }
+    if let Some(truth) = &args.truth {
+        check.input_file(truth, "--truth");
+    }
+    check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS).check()?;
     let model = read_cloud(&args.model)?;
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
+    model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
     let cad = read_mesh(&args.cad)?;
     let (init, source) = match (&args.init, &args.truth) {
         (Some(path), _) => (Some(read_transform(path, "T_object_model")?), Some(path)),

@@ -4,7 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use awl::io::mesh::write_cloud;
-use awl::io::report::write_report;
+use awl::io::outputs::{OutputCheck, StagedFolder};
+use awl::io::report::{REPORT_FILE, write_report};
 use awl::io::scan::{Scan, read_scan};
 use awl::io::workpiece::write_workpiece;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
@@ -39,7 +40,13 @@ pub struct FuseArgs {
     /// Print the report as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Replace an earlier fuse's output folder (the same flag in every command).
+    #[arg(long)]
+    pub force: bool,
 }
+
+/// The entries `awl fuse` writes in its output folder (`--force` replaces a folder holding only these).
+pub const FUSE_OUTPUTS: &[&str] = &["model.ply", "report.json", REPORT_FILE, "renders", WORKPIECE_FILE];
 
 /// A starting set of parameters (`--preset`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -83,8 +90,8 @@ fn non_finite(value: &toml::Value, key: &str) -> Option<(String, f64)> {
 }
 
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as
-/// `renders/*.png`) and, when the scan declares a tag, `workpiece.json` into `out_dir`, creating
-/// it; `tags` is the scan's tag search ([`fuse_with_progress`]); `rmse_m` (an RMSE against ground
+/// `renders/*.png`) and, when the scan declares a tag, `workpiece.json` as the folder `out_dir`,
+/// whole or not at all (a temporary sibling renamed into place, replacing an earlier one); `tags` is the scan's tag search ([`fuse_with_progress`]); `rmse_m` (an RMSE against ground
 /// truth, when the caller has one) goes on the page. Returns the page's path and the workpiece
 /// (see [`workpiece_warnings`]).
 pub fn write_outputs(
@@ -100,13 +107,16 @@ pub fn write_outputs(
         || fuse_page(&out.report, &out.model, rmse_m, &PageParams::default()),
     );
     let (workpiece, page) = (workpiece?, page?);
-    std::fs::create_dir_all(out_dir).with_context(|| format!("{}: cannot create", out_dir.display()))?;
-    write_cloud(&out_dir.join("model.ply"), &out.model)?;
-    write_json(&out_dir.join("report.json"), &out.report)?;
+    let staged = StagedFolder::begin(out_dir)?;
+    let dir = staged.path();
+    write_cloud(&dir.join("model.ply"), &out.model)?;
+    write_json(&dir.join("report.json"), &out.report)?;
     if let Some(wp) = &workpiece {
-        write_workpiece(&out_dir.join(WORKPIECE_FILE), wp)?;
+        write_workpiece(&dir.join(WORKPIECE_FILE), wp)?;
     }
-    Ok((write_report(out_dir, &page.page, &page.renders)?, workpiece))
+    write_report(dir, &page.page, &page.renders)?;
+    staged.commit()?;
+    Ok((out_dir.join(REPORT_FILE), workpiece))
 }
 
 /// The workpiece's warnings, each prefixed for the user.
@@ -147,6 +157,12 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     };
     let config = load_config(args.config.as_ref(), base)?;
     let scan = read_scan(&args.scan)?;
+    let mut check = OutputCheck::new(args.force);
+    check.input_folder(&args.scan, "the scan folder").input_files(&scan.input_files(), "a file the scan names");
+    if let Some(path) = &args.config {
+        check.input_file(path, "--config");
+    }
+    check.output_folder(&args.output, "-o", FUSE_OUTPUTS).check()?;
     let (out, tags) = fuse_with_progress(&scan, &config, args.quiet)?;
     // the folder is made only once there is something to put in it
     let (_, workpiece) = write_outputs(&args.output, tags.as_ref(), &out, None)?;

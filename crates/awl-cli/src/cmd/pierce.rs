@@ -8,7 +8,8 @@ use awl::io::arm::read_arm;
 use awl::io::evaluation::read_transform;
 use awl::io::handeye::read_ee_from_camera;
 use awl::io::mesh::read_cloud;
-use awl::io::plan::{PlanSources, plan_json, programs_json, write_plan_value};
+use awl::io::outputs::{OutputCheck, write_files_atomic};
+use awl::io::plan::{PlanSources, plan_json, plan_value_text, programs_json};
 use awl::io::scan::read_scan;
 use awl::io::workpiece::{read_targets, read_workpiece};
 use awl::kinematics::Arm;
@@ -20,7 +21,7 @@ use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
 use nalgebra::Isometry3;
 
-use super::common::{NoGo, refuse_overwriting_inputs};
+use super::common::NoGo;
 
 /// The piercing direction on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -87,6 +88,12 @@ pub struct PierceArgs {
     /// Print the plan as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Replace earlier output files (the same flag in every command).
+    #[arg(long)]
+    pub force: bool,
+    /// Accept a `--depth-m` past 5 cm (up to 2 m, an arm's reach).
+    #[arg(long)]
+    pub allow_long_moves: bool,
     #[command(flatten)]
     pub robot: RobotArgs,
 }
@@ -123,6 +130,7 @@ fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
         specs.extend(read_targets(path)?);
     }
     anyhow::ensure!(!specs.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
+    awl::workpiece::check_target_count(specs.len()).map_err(|m| anyhow::anyhow!("--target / --targets-file: {m}"))?;
     Ok(specs)
 }
 
@@ -160,21 +168,13 @@ pub fn robot_setup(args: &RobotArgs) -> anyhow::Result<Option<(Arm, Isometry3<f6
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let specs = targets(args)?;
-    for out in std::iter::once(&args.output).chain(&args.urscript).chain(&args.techman) {
-        let mut inputs: Vec<&Path> = vec![args.workpiece.as_path()];
-        inputs.extend(args.targets_file.as_deref());
-        inputs.extend(args.hand_eye.as_deref());
-        inputs.extend(args.robot.robot_file.as_deref());
-        inputs.extend(args.robot.tcp.as_deref());
-        refuse_overwriting_inputs(out, &inputs)?;
-        anyhow::ensure!(!out.starts_with(&args.shot), "{}: refusing to write into the shot folder", out.display());
-    }
     let workpiece = read_workpiece(&args.workpiece)?;
-    let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
+    let mut shot = read_scan(&args.shot)?;
+    check_outputs(args, &model_path, &shot)?;
+    let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
     let model =
         read_cloud(&model_path).with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
-    let mut shot = read_scan(&args.shot)?;
     // the hand-eye the shot's views start from: a given calibration, else the workpiece's (refined
     // from the scan) when the shot records the scan's, else the shot's recorded one
     let (hand_eye_source, prior) = match &args.hand_eye {
@@ -193,11 +193,7 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
             AxisArg::Normal => AxisChoice::Normal,
             AxisArg::Tag => AxisChoice::Tag,
         },
-        stroke: Stroke {
-            approach_m: args.approach_m,
-            depth_m: args.depth_m,
-            retract_m: args.retract_m.unwrap_or(args.approach_m),
-        },
+        stroke: stroke(args)?,
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
         hand_eye: prior,
         tolerance: Tolerance {
@@ -216,18 +212,19 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     }
     let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
     // everything is computed before the first file is written
-    let ur_program = urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string());
-    let tm_packets = techman_packets(&plan, &ScriptSpeeds::default());
-    let script = args.urscript.as_ref().map(|_| ur_program.clone());
-    let techman = args.techman.as_ref().map(|_| tm_packets.clone());
+    let ur_program = urscript(&plan, &ScriptSpeeds::default(), &args.workpiece.display().to_string())?;
+    let tm_packets = techman_packets(&plan, &ScriptSpeeds::default())?;
     let mut json = plan_json(&plan, &sources);
     json["programs"] = programs_json(&ur_program, &tm_packets);
-    write_plan_value(&args.output, &json)?;
-    for (path, text) in [(&args.urscript, script), (&args.techman, techman)] {
-        if let (Some(path), Some(text)) = (path, text) {
-            awl::io::write_atomic(path, text.as_bytes())?;
-        }
+    // (each checked for the robot: finite, within reach) and all written or none
+    let mut files = vec![(args.output.as_path(), plan_value_text(&plan, &json)?)];
+    if let Some(path) = &args.urscript {
+        files.push((path, ur_program.clone()));
     }
+    if let Some(path) = &args.techman {
+        files.push((path, tm_packets.clone()));
+    }
+    write_files_atomic(&files.iter().map(|(p, t)| (*p, t.as_bytes())).collect::<Vec<_>>())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&json)?);
     } else if !args.quiet {
@@ -238,6 +235,51 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         return Err(NoGo { refused, targets: plan.targets.len() }.into());
     }
     Ok(())
+}
+
+/// The stroke from the options, range-checked (`--depth-m` at most 5 cm unless `--allow-long-moves`,
+/// stand-offs within an arm's reach), the error naming the option.
+fn stroke(args: &PierceArgs) -> anyhow::Result<Stroke> {
+    let stroke = Stroke {
+        approach_m: args.approach_m,
+        depth_m: args.depth_m,
+        retract_m: args.retract_m.unwrap_or(args.approach_m),
+        ..Stroke::default()
+    };
+    let stroke = if args.allow_long_moves { stroke.allowing_long_moves() } else { stroke };
+    match stroke.validate() {
+        Ok(()) => Ok(stroke),
+        Err(awl::Error::Invalid { what, message }) => anyhow::bail!("--{}: {message}", what.replace('_', "-")),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Refuses outputs that are an input (the workpiece, its model, a shot file, the targets or hand-eye
+/// file), lie in the shot folder, name the same file, or exist without `--force`.
+fn check_outputs(args: &PierceArgs, model: &Path, shot: &awl::io::scan::Scan) -> anyhow::Result<()> {
+    let mut check = OutputCheck::new(args.force);
+    check
+        .input_file(&args.workpiece, "WORKPIECE")
+        .input_file(model, "the workpiece's model")
+        .input_folder(&args.shot, "--shot")
+        .input_files(&shot.input_files(), "a file the shot names");
+    for (path, what) in [
+        (&args.targets_file, "--targets-file"),
+        (&args.hand_eye, "--hand-eye"),
+        (&args.robot.robot_file, "--robot-file"),
+        (&args.robot.tcp, "--tcp"),
+    ] {
+        if let Some(p) = path {
+            check.input_file(p, what);
+        }
+    }
+    check.output_file(&args.output, "-o");
+    for (path, what) in [(&args.urscript, "--urscript"), (&args.techman, "--techman")] {
+        if let Some(p) = path {
+            check.output_file(p, what);
+        }
+    }
+    Ok(check.check()?)
 }
 
 fn print_summary(plan: &PiercePlan, args: &PierceArgs) {

@@ -5,13 +5,14 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::PointCloud;
 use awl::io::mesh::read_cloud;
+use awl::io::outputs::OutputCheck;
 use awl::normals::{NormalParams, with_normals};
 use awl::registration::{IcpParams, register};
 use awl::transform::{Rows, isometry_from_rows, rows_from_isometry};
 use nalgebra::Isometry3;
 use serde_json::json;
 
-use super::common::{refuse_overwriting_inputs, set_threads, write_json};
+use super::common::{set_threads, write_json};
 
 /// Arguments of `awl register`.
 #[derive(clap::Args)]
@@ -29,6 +30,9 @@ pub struct RegisterArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Replace an earlier output file (the same flag in every command).
+    #[arg(long)]
+    pub force: bool,
 }
 
 fn read_init(path: &Path) -> anyhow::Result<Isometry3<f64>> {
@@ -45,13 +49,20 @@ fn read_init(path: &Path) -> anyhow::Result<Isometry3<f64>> {
 fn prepared(path: &Path) -> anyhow::Result<PointCloud> {
     let cloud = read_cloud(path)?;
     anyhow::ensure!(!cloud.is_empty(), "{}: the cloud is empty", path.display());
+    // a NaN or infinite point is named here, with the file, not deep in the k-d tree
+    cloud.validate(&path.display().to_string()).context("remove or fix the non-finite points")?;
     Ok(with_normals(&cloud, &NormalParams::default(), None)?)
 }
 
 /// Runs `awl register`.
 pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
-    refuse_overwriting_inputs(&args.output, &[&args.source, &args.target])?;
+    let mut check = OutputCheck::new(args.force);
+    check.input_file(&args.source, "SOURCE").input_file(&args.target, "TARGET");
+    if let Some(init) = &args.init {
+        check.input_file(init, "--init");
+    }
+    check.output_file(&args.output, "-o").check()?;
     let init = args.init.as_deref().map(read_init).transpose()?.unwrap_or_else(Isometry3::identity);
     let (source, target) = (prepared(&args.source)?, prepared(&args.target)?);
     let result = register(&source, &target, &init, &IcpParams::default())?;

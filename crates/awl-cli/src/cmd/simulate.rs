@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
+use awl::io::outputs::OutputCheck;
 use awl::sim::capture::{CaptureParams, simulate_capture};
 use awl::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, simulate, write_simulation};
 use awl::transform::pose_difference;
@@ -78,7 +79,7 @@ pub struct SimulateArgs {
     /// Output scan folder (must not exist or be empty, unless --force).
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
-    /// Replace the output folder if it exists.
+    /// Replace an earlier simulation's output folder (the same flag in every command).
     #[arg(long)]
     pub force: bool,
 }
@@ -145,8 +146,12 @@ fn run_capture(args: &SimulateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The entries `awl simulate` writes in its output folder (`--force` replaces a folder holding only these).
+pub const SIMULATE_OUTPUTS: &[&str] = &["scan.json", "truth.json", "cad.ply", "depth", "color", "labels"];
+
 /// Runs `awl simulate`.
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
+    OutputCheck::new(args.force).output_folder(&args.output, "-o", SIMULATE_OUTPUTS).check()?;
     if args.capture {
         return run_capture(args);
     }

@@ -163,6 +163,9 @@ pub struct HandEyeParams {
     pub inverted_fit_factor: f64,
     /// Accept such poses as given, with a [`Diagnosis::InvertedConvention`] warning. Default false.
     pub allow_inverted_fit: bool,
+    /// The most poses a calibration takes (the closed forms use every pose pair: memory and time
+    /// grow with the square of the count). Default 1000 (500 k pairs).
+    pub max_poses: usize,
 }
 
 impl Default for HandEyeParams {
@@ -184,6 +187,7 @@ impl Default for HandEyeParams {
             min_noise_mm: 0.25,
             inverted_fit_factor: 5.0,
             allow_inverted_fit: false,
+            max_poses: 1000,
         }
     }
 }

@@ -23,6 +23,52 @@ fn check_isometry(iso: &Isometry3<f64>, what: impl FnOnce() -> String) -> Result
     if (norm - 1.0).abs() > UNIT_TOLERANCE {
         return Err(Error::invalid(what(), format!("not a rigid transform (rotation quaternion norm {norm})")));
     }
+    let d = iso.translation.vector.amax();
+    if d > MAX_POSE_TRANSLATION_M {
+        return Err(Error::invalid(
+            what(),
+            format!(
+                "a translation coordinate of {d:.3e} m, beyond the {MAX_POSE_TRANSLATION_M} m a flange or a tag is from the robot \
+                 base or the camera: poses are in metres (not millimetres); check this pose"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The farthest a hand-eye pose's translation may reach (`T_base_ee`: an arm's reach; `T_camera_target`:
+/// a tag seen by the camera), metres.
+pub const MAX_POSE_TRANSLATION_M: f64 = 100.0;
+
+/// The most refinement iterations [`HandEyeParams::max_iterations`] may ask for.
+pub const MAX_ITERATIONS: usize = 10_000;
+
+/// Refuses a result with a non-finite value (a NaN residual would otherwise reach the output file),
+/// naming the first pose whose residual is not finite.
+fn check_result(result: &HandEyeResult) -> Result<()> {
+    if let Some(r) = result.residuals.iter().find(|r| !(r.translation_mm.is_finite() && r.rotation_deg.is_finite())) {
+        return Err(Error::invalid(
+            format!("poses[{}]", r.index),
+            format!(
+                "its residual is not finite ({} mm / {} deg): the pose is degenerate or far off; remove it",
+                r.translation_mm, r.rotation_deg
+            ),
+        ));
+    }
+    let finite =
+        |x: &Isometry3<f64>| x.translation.vector.iter().chain(x.rotation.coords.iter()).all(|v| v.is_finite());
+    let rms = [
+        result.rms_translation_mm,
+        result.rms_rotation_deg,
+        result.rms_all_translation_mm,
+        result.rms_all_rotation_deg,
+    ];
+    if !finite(&result.ee_from_camera) || !finite(&result.base_from_target) || rms.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            "poses",
+            "the calibration's result is not finite: check the poses for a degenerate one",
+        ));
+    }
     Ok(())
 }
 
@@ -33,11 +79,23 @@ fn validate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<()> {
             format!("hand-eye calibration needs at least 3 poses, got {}", poses.len()),
         ));
     }
+    params.validate()?;
+    if poses.len() > params.max_poses {
+        return Err(Error::invalid(
+            "poses",
+            format!(
+                "{} poses, more than max_poses {} (every pose pair is used: memory and time grow with the square \
+                 of the count); raise max_poses (--max-poses) or calibrate from a subset",
+                poses.len(),
+                params.max_poses
+            ),
+        ));
+    }
     for (i, p) in poses.iter().enumerate() {
         check_isometry(&p.base_from_ee, || format!("poses[{i}].T_base_ee"))?;
         check_isometry(&p.camera_from_target, || format!("poses[{i}].T_camera_target"))?;
     }
-    params.validate()
+    Ok(())
 }
 
 impl HandEyeParams {
@@ -81,6 +139,13 @@ impl HandEyeParams {
         }
         if self.refine && self.max_iterations == 0 {
             return Err(Error::invalid("max_iterations", "must be at least 1 when refining"));
+        }
+        if self.max_iterations > MAX_ITERATIONS {
+            let v = self.max_iterations;
+            return Err(Error::invalid("max_iterations", format!("must be at most {MAX_ITERATIONS}, got {v}")));
+        }
+        if self.max_poses < 3 {
+            return Err(Error::invalid("max_poses", format!("must be at least 3, got {}", self.max_poses)));
         }
         Ok(())
     }
@@ -187,7 +252,9 @@ pub fn calibrate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<HandEy
         );
         let fits = inversion_fits(poses);
         check_convention(&res, &fits, &solve, params, &mut warnings)?;
-        return Ok(finish(solve, res, rejected, warnings, uncertainty, fits, params));
+        let result = finish(solve, res, rejected, warnings, uncertainty, fits, params);
+        check_result(&result)?;
+        return Ok(result);
     }
 }
 

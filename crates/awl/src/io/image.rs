@@ -12,9 +12,57 @@ use crate::io::{read_bytes, write_atomic};
 
 /// The PNG at `path`, read and its header decoded.
 fn decoder(path: &Path) -> Result<png::Reader<std::io::Cursor<Vec<u8>>>> {
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(read_bytes(path)?));
+    let bytes = read_bytes(path)?;
+    let file_len = bytes.len();
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     decoder.set_transformations(png::Transformations::IDENTITY);
-    decoder.read_info().map_err(|e| Error::format(path, format!("not a readable PNG: {e}")))
+    let reader = decoder.read_info().map_err(|e| Error::format(path, format!("not a readable PNG: {e}")))?;
+    check_png_size(path, &reader, file_len)?;
+    Ok(reader)
+}
+
+/// The most pixels an image may have by default: 100 M (10000 x 10000; a depth camera has 1-2 M).
+pub const DEFAULT_MAX_IMAGE_PIXELS: u64 = 100_000_000;
+
+/// The environment variable that raises (or lowers) [`max_image_pixels`].
+pub const MAX_IMAGE_PIXELS_VAR: &str = "AWL_MAX_IMAGE_PIXELS";
+
+/// The most pixels an image (a PNG or JPEG file, a camera in scan.json) may have before anything is
+/// allocated for it: `AWL_MAX_IMAGE_PIXELS` when set to a number, else [`DEFAULT_MAX_IMAGE_PIXELS`].
+pub fn max_image_pixels() -> u64 {
+    std::env::var(MAX_IMAGE_PIXELS_VAR).ok().and_then(|v| v.trim().parse().ok()).unwrap_or(DEFAULT_MAX_IMAGE_PIXELS)
+}
+
+/// Refuses a `width` x `height` image over [`max_image_pixels`], naming `what` (the file, or the
+/// scan.json field) and how to raise the limit.
+pub(crate) fn check_image_pixels(width: u64, height: u64) -> std::result::Result<(), String> {
+    let (pixels, max) = (width.saturating_mul(height), max_image_pixels());
+    if pixels > max {
+        return Err(format!(
+            "{width} x {height} = {pixels} pixels, more than the {max}-pixel limit (set {MAX_IMAGE_PIXELS_VAR} to raise it)"
+        ));
+    }
+    Ok(())
+}
+
+/// Refuses a PNG whose header's size is over [`max_image_pixels`] or more than a `file_len`-byte
+/// file can hold (deflate packs at most 1032 bytes into one), before anything is allocated for it.
+fn check_png_size(path: &Path, reader: &png::Reader<std::io::Cursor<Vec<u8>>>, file_len: usize) -> Result<()> {
+    let info = reader.info();
+    check_image_pixels(u64::from(info.width), u64::from(info.height))
+        .map_err(|m| Error::format(path, format!("PNG header declares {m}")))?;
+    let size = output_size(path, reader)?;
+    if size as u64 > 1032 * file_len as u64 + 65_536 {
+        return Err(Error::format(
+            path,
+            format!(
+                "PNG header declares {} x {} ({size} bytes of pixels), more than a {file_len}-byte file can hold: \
+                 the file is truncated or its header is corrupt",
+                info.width, info.height
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// The decoded image's size in bytes, once known to fit in memory's address space.

@@ -9,6 +9,7 @@ pub mod evaluation;
 pub mod handeye;
 pub mod image;
 pub mod mesh;
+pub mod outputs;
 pub mod pcd;
 mod pcd_header;
 pub mod plan;

@@ -50,7 +50,7 @@ use serde_json::{Value, json};
 use crate::error::Result;
 use crate::io::write_atomic;
 use crate::pierce::reach::{ReachSetup, TargetReach};
-use crate::pierce::{PiercePlan, quaternion_xyzw, ur_pose};
+use crate::pierce::{PiercePlan, check_for_robot, quaternion_xyzw, ur_pose};
 use crate::transform::rows_from_isometry;
 
 /// The format tag of plan.json.
@@ -217,14 +217,16 @@ pub fn programs_json(urscript: &str, techman: &str) -> Value {
     json!({ "urscript": urscript, "techman": techman })
 }
 
-/// Writes a plan's JSON value (e.g. [`plan_json`] with [`programs_json`] added) atomically.
+/// The text of a plan's JSON value (e.g. [`plan_json`] with [`programs_json`] added), once the plan
+/// passes [`check_for_robot`].
 ///
 /// # Errors
-/// [`crate::Error::Io`] when the file cannot be written.
-pub fn write_plan_value(path: &Path, value: &Value) -> Result<()> {
+/// As [`check_for_robot`].
+pub fn plan_value_text(plan: &PiercePlan, value: &Value) -> Result<String> {
+    check_for_robot(plan)?;
     let mut text = serde_json::to_string_pretty(value).unwrap_or_default();
     text.push('\n');
-    write_atomic(path, text.as_bytes())
+    Ok(text)
 }
 
 /// What `awl send` needs from a plan.json: its programs and the targets that must not be run.
@@ -274,12 +276,22 @@ pub fn read_plan_to_send(path: &Path) -> Result<PlanToSend> {
     Ok(PlanToSend { urscript: program("urscript")?, techman: program("techman")?, refused })
 }
 
-/// Writes plan.json atomically.
+/// The text of plan.json, once the plan passes [`check_for_robot`].
 ///
 /// # Errors
-/// [`crate::Error::Io`] when the file cannot be written.
-pub fn write_plan(path: &Path, plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<()> {
+/// [`crate::Error::Invalid`] from [`check_for_robot`]: no plan file holds a non-finite or
+/// out-of-range pose.
+pub fn plan_text(plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<String> {
+    check_for_robot(plan)?;
     let mut text = serde_json::to_string_pretty(&plan_json(plan, sources)).unwrap_or_default();
     text.push('\n');
-    write_atomic(path, text.as_bytes())
+    Ok(text)
+}
+
+/// Writes plan.json atomically ([`plan_text`]).
+///
+/// # Errors
+/// As [`plan_text`]; [`crate::Error::Io`] when the file cannot be written.
+pub fn write_plan(path: &Path, plan: &PiercePlan, sources: &PlanSources<'_>) -> Result<()> {
+    write_atomic(path, plan_text(plan, sources)?.as_bytes())
 }

@@ -127,6 +127,22 @@ impl Scan {
         })
     }
 
+    /// Every file the scan reads: `scan.json` and each view's depth, color or point file (paths as
+    /// the manifest names them, joined to `dir`; a view may name a file outside the folder).
+    pub fn input_files(&self) -> Vec<PathBuf> {
+        let mut files = vec![Self::manifest_path(&self.dir)];
+        for v in &self.views {
+            match &v.data {
+                ViewData::Depth { depth, color } => {
+                    files.push(self.dir.join(depth));
+                    files.extend(color.iter().map(|c| self.dir.join(c)));
+                }
+                ViewData::Points { points } => files.push(self.dir.join(points)),
+            }
+        }
+        files
+    }
+
     /// The depth camera (`camera` in `scan.json`).
     ///
     /// # Errors
@@ -203,8 +219,25 @@ struct RawScan {
 
 /// Parses a 4x4 pose field, naming the file and the field when it is not rigid.
 pub(crate) fn pose_field(path: &Path, field: &str, rows: &Rows) -> Result<Isometry3<f64>> {
-    isometry_from_rows(rows).map_err(|m| Error::field(path, field, m))
+    let pose = isometry_from_rows(rows).map_err(|m| Error::field(path, field, m))?;
+    // the largest coordinate (a norm would overflow to infinity for 1e300)
+    let d = pose.translation.vector.amax();
+    if d > MAX_TRANSLATION_M {
+        return Err(Error::field(
+            path,
+            field,
+            format!(
+                "a translation coordinate of {d:.3e} m, beyond the {MAX_TRANSLATION_M} m any awl frame spans: poses \
+                 are in metres (not millimetres)"
+            ),
+        ));
+    }
+    Ok(pose)
 }
+
+/// The farthest a pose in a file may translate, metres (a SLAM map, a robot base, a camera: 100 km
+/// is past any of them; a value beyond is a unit mistake or garbage).
+pub const MAX_TRANSLATION_M: f64 = 1e5;
 
 /// Parses JSON text, naming the file, line and column on error.
 pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(path: &Path, bytes: &[u8]) -> Result<T> {
@@ -246,6 +279,8 @@ pub(crate) fn intrinsics_from_parts(path: &Path, prefix: &str, raw: &RawIntrinsi
     if raw.width == 0 || raw.height == 0 {
         return Err(Error::field(path, format!("{prefix}width"), "image size must be positive"));
     }
+    crate::io::image::check_image_pixels(u64::from(raw.width), u64::from(raw.height))
+        .map_err(|m| Error::field(path, format!("{prefix}width"), m))?;
     let mut distortion = [0.0; 5];
     if let Some(d) = &raw.distortion {
         if d.len() > 5 || d.iter().any(|k| !k.is_finite()) {

@@ -9,6 +9,7 @@ pub mod locate;
 pub mod plan;
 pub mod predict;
 pub mod reach;
+pub mod safety;
 pub mod script;
 pub mod tool;
 
@@ -16,5 +17,6 @@ pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefinePar
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
 pub use predict::{PredictParams, Prediction, Tolerance};
 pub use reach::{PathJoints, ReachParams, ReachSetup, TargetReach, plan_reach, reach_target, shot_joints};
+pub use safety::check_for_robot;
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
-pub use tool::{Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};
+pub use tool::{MAX_DEPTH_M, MAX_REACH_M, Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};

@@ -19,7 +19,9 @@ use std::fmt::Write as _;
 
 use nalgebra::Isometry3;
 
+use crate::error::{Error, Result};
 use crate::pierce::plan::PiercePlan;
+use crate::pierce::safety::check_for_robot;
 use crate::pierce::tool::{ToolPoses, tm_pose, ur_pose};
 
 /// Speeds of the generated program.
@@ -64,8 +66,33 @@ fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f
     [(&poses.approach, travel), (&poses.pierce, slow), (&poses.retract, slow)]
 }
 
+impl ScriptSpeeds {
+    /// Checks the speeds: finite and positive, tool speeds at most 1 m/s, acceleration at most 5 m/s^2.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the field.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v, max) in [
+            ("travel_m_s", self.travel_m_s, 1.0),
+            ("pierce_m_s", self.pierce_m_s, 1.0),
+            ("accel_m_s2", self.accel_m_s2, 5.0),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return Err(Error::invalid(name, format!("must be in (0, {max}], got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
-pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> String {
+///
+/// # Errors
+/// [`Error::Invalid`] from [`check_for_robot`] or [`ScriptSpeeds::validate`]: no program is made
+/// from a non-finite or out-of-range value.
+pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Result<String> {
+    check_for_robot(plan)?;
+    speeds.validate()?;
     let mut s = String::new();
     let _ = writeln!(s, "def awl_pierce():");
     let go = plan.targets.iter().filter(|t| t.go()).count();
@@ -103,7 +130,8 @@ pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Strin
         }
     }
     let _ = writeln!(s, "end");
-    s
+    let _ = writeln!(s, "awl_pierce()");
+    Ok(s)
 }
 
 /// One Techman listen-node packet: `$TMSCT,<length>,<id>,<script>,*<checksum>` and CR LF, where the
@@ -141,9 +169,14 @@ fn tm_ptp(q: &crate::kinematics::Joints, speeds: &ScriptSpeeds) -> String {
 /// The Techman listen-node packets of `plan` (module docs): per target, one `$TMSCT` packet (id
 /// `awl<i>`) that selects the robot base and moves approach -> pierce -> retract, then one that
 /// leaves the listen node (`ScriptExit()`). With a checked reach: the TCP set from `T_ee_tool`,
-/// a joint move to the approach joints, then the two linear moves; refused targets left out.
+/// a joint move to the approach joints, then the two linear moves; no-go targets left out.
 /// Send them in order to the listen node (TCP port 5890), each after the previous one's reply.
-pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
+///
+/// # Errors
+/// As [`urscript`].
+pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> Result<String> {
+    check_for_robot(plan)?;
+    speeds.validate()?;
     let mut out = String::new();
     for (i, t) in plan.targets.iter().enumerate() {
         if !t.go() {
@@ -165,7 +198,7 @@ pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> String {
         out.push_str(&tmsct_packet(&format!("awl{i}"), &lines.join("\r\n")));
     }
     out.push_str(&tmsct_packet("awlexit", "ScriptExit()"));
-    out
+    Ok(out)
 }
 
 #[cfg(test)]

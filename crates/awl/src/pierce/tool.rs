@@ -30,26 +30,61 @@ pub struct Stroke {
     pub depth_m: f64,
     /// Retract stand-off before the surface. Default 0.10.
     pub retract_m: f64,
+    /// The deepest `depth_m` accepted: [`MAX_DEPTH_M`] (a piercing depth of a few centimetres), up to
+    /// [`MAX_REACH_M`] for a user who asks for long moves (`--allow-long-moves`). Default [`MAX_DEPTH_M`].
+    pub max_depth_m: f64,
 }
+
+/// The deepest piercing by default, metres: a few centimetres past the surface.
+pub const MAX_DEPTH_M: f64 = 0.05;
+
+/// An arm's reach, metres (the largest built-in arm, UR20/UR30, reaches 1.75 m; 2 m leaves a margin):
+/// no stand-off, depth or tool position in the base frame may be farther.
+pub const MAX_REACH_M: f64 = 2.0;
 
 impl Default for Stroke {
     fn default() -> Self {
-        Self { approach_m: 0.10, depth_m: 0.01, retract_m: 0.10 }
+        Self { approach_m: 0.10, depth_m: 0.01, retract_m: 0.10, max_depth_m: MAX_DEPTH_M }
     }
 }
 
 impl Stroke {
-    /// Checks the distances.
+    /// Checks the distances: finite, non-negative, stand-offs within [`MAX_REACH_M`], the depth
+    /// within `max_depth_m` (itself at most [`MAX_REACH_M`]).
     ///
     /// # Errors
-    /// [`Error::Invalid`] naming the option for a negative or non-finite distance.
+    /// [`Error::Invalid`] naming the field (`approach_m`, `depth_m`, `retract_m`, `max_depth_m`) for a
+    /// negative, non-finite or out-of-range distance, with the limit and how to raise it.
     pub fn validate(&self) -> Result<()> {
-        for (name, v) in [("approach_m", self.approach_m), ("depth_m", self.depth_m), ("retract_m", self.retract_m)] {
+        let fields = [
+            ("approach_m", self.approach_m, MAX_REACH_M),
+            ("retract_m", self.retract_m, MAX_REACH_M),
+            ("max_depth_m", self.max_depth_m, MAX_REACH_M),
+            ("depth_m", self.depth_m, self.max_depth_m),
+        ];
+        for (name, v, max) in fields {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(Error::invalid(name, format!("must be a non-negative length in metres, got {v}")));
             }
+            if v > max && name == "depth_m" {
+                return Err(Error::invalid(
+                    name,
+                    format!(
+                        "{v} m is deeper than the {max} m a piercing goes at most (a few centimetres); \
+                         allow_long_moves (--allow-long-moves) raises the limit to {MAX_REACH_M} m"
+                    ),
+                ));
+            }
+            if v > max {
+                return Err(Error::invalid(name, format!("{v} m is beyond an arm's {max} m reach")));
+            }
         }
         Ok(())
+    }
+
+    /// `self` with the depth limit raised to [`MAX_REACH_M`] (`--allow-long-moves`).
+    pub fn allowing_long_moves(self) -> Self {
+        Self { max_depth_m: MAX_REACH_M, ..self }
     }
 }
 

@@ -312,7 +312,15 @@ impl FuseConfig {
         r.icp.validate().map_err(|e| match e {
             Error::Invalid { what, message } => Error::invalid(format!("registration.{what}"), message),
             other => other,
-        })
+        })?;
+        let document = serde_json::to_value(self).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        match too_many_iterations(&document, "") {
+            Some((key, v)) => Err(Error::invalid(
+                key,
+                format!("{v} iterations, more than the {MAX_ITERATIONS} any stage runs at most: lower it"),
+            )),
+            None => Ok(()),
+        }
     }
 
     /// The config a partial document describes (e.g. a TOML file turned into a JSON value): each
@@ -336,6 +344,30 @@ impl FuseConfig {
             serde_json::to_value(base).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
         merge(&mut merged, overrides);
         serde_json::from_value(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
+    }
+}
+
+/// The most iterations any stage's count (RANSAC, ICP levels, joint refinement, rounds: every key
+/// with `iterations` or `rounds` in its name) may ask for: a count from a config file is a loop
+/// bound, and 1e12 would run for days.
+pub const MAX_ITERATIONS: u64 = 100_000;
+
+/// The first key (dotted, with list indices) of an iteration count over [`MAX_ITERATIONS`].
+fn too_many_iterations(value: &serde_json::Value, key: &str) -> Option<(String, u64)> {
+    use serde_json::Value;
+    let child = |k: &str| if key.is_empty() { k.to_string() } else { format!("{key}.{k}") };
+    match value {
+        Value::Object(map) => map.iter().find_map(|(k, v)| {
+            let counted = k.contains("iterations") || k.contains("rounds");
+            match v.as_u64() {
+                Some(n) if counted && n > MAX_ITERATIONS => Some((child(k), n)),
+                _ => too_many_iterations(v, &child(k)),
+            }
+        }),
+        Value::Array(items) => {
+            items.iter().enumerate().find_map(|(i, v)| too_many_iterations(v, &format!("{key}[{i}]")))
+        }
+        _ => None,
     }
 }
 

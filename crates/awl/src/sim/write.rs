@@ -73,21 +73,6 @@ fn write_all(tmp: &Path, sim: &Simulation) -> Result<()> {
     write_scan(&scan)
 }
 
-/// Moves the finished `tmp` folder to `dir`, replacing an existing `dir` (kept until the move succeeds).
-fn swap_into_place(tmp: &Path, dir: &Path) -> Result<()> {
-    if !dir.exists() {
-        return fs::rename(tmp, dir).map_err(|e| Error::io(dir, e));
-    }
-    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let old = dir.with_file_name(format!(".{name}.old-{}", std::process::id()));
-    fs::rename(dir, &old).map_err(|e| Error::io(dir, e))?;
-    if let Err(e) = fs::rename(tmp, dir) {
-        let _ = fs::rename(&old, dir);
-        return Err(Error::io(dir, e));
-    }
-    fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
-}
-
 /// Writes `sim` as the scan folder `dir`: `scan.json`, `truth.json`, `cad.ply`, and `depth/`,
 /// `color/`, `labels/` PNGs. The folder appears complete or not at all.
 ///
@@ -108,7 +93,7 @@ pub fn write_simulation(dir: &Path, sim: &Simulation, overwrite: bool) -> Result
     if tmp.exists() {
         fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
     }
-    let result = write_all(&tmp, sim).and_then(|()| swap_into_place(&tmp, dir));
+    let result = write_all(&tmp, sim).and_then(|()| crate::io::outputs::replace_folder(&tmp, dir));
     if result.is_err() {
         let _ = fs::remove_dir_all(&tmp);
     }

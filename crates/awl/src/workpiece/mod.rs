@@ -30,5 +30,5 @@ pub use tag_pose::{
     Sighting, TagEstimate, TagEstimateParams, TagSearch, TagView, ViewTagDetection, estimate_from_views,
     estimate_world_from_tag, search_tags,
 };
-pub use target_spec::{TargetSpec, parse_targets};
+pub use target_spec::{MAX_TARGETS, TargetSpec, check_target_count, parse_targets};
 pub use targets::{SurfaceModel, SurfaceTarget, TargetParams};

@@ -78,7 +78,7 @@ impl TargetSpec {
 ///
 /// # Errors
 /// [`Error::Format`] for invalid JSON; [`Error::Field`] naming `targets[i]` or `line N` for a bad
-/// target; [`Error::Field`] when the file holds no target.
+/// target; [`Error::Field`] when the file holds no target or more than [`MAX_TARGETS`].
 pub fn parse_targets(path: &Path, text: &str) -> Result<Vec<TargetSpec>> {
     let trimmed = text.trim_start();
     let targets = if trimmed.starts_with('[') || trimmed.starts_with('{') {
@@ -110,7 +110,25 @@ pub fn parse_targets(path: &Path, text: &str) -> Result<Vec<TargetSpec>> {
     if targets.is_empty() {
         return Err(Error::field(path, "targets", "no target in the file"));
     }
+    check_target_count(targets.len()).map_err(|m| Error::field(path, "targets", m))?;
     Ok(targets)
+}
+
+/// The most targets one plan takes (each is snapped onto the model and fitted, a few milliseconds
+/// each; a robot program of more moves than this is a mistake): split a longer list into plans.
+pub const MAX_TARGETS: usize = 1000;
+
+/// Refuses more than [`MAX_TARGETS`] targets; the message says the limit and what to do.
+///
+/// # Errors
+/// The message, for the caller to name the file or option.
+pub fn check_target_count(count: usize) -> std::result::Result<(), String> {
+    if count > MAX_TARGETS {
+        return Err(format!(
+            "{count} targets, more than the {MAX_TARGETS} one plan takes: split them into several plans"
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
