@@ -25,6 +25,8 @@ enum Command {
     Evaluate(cmd::evaluate::EvaluateArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
     Fuse(cmd::fuse::FuseArgs),
+    /// Import a recording of the rig: `awl import rosbag BAG -o SCAN_DIR` (ROS 2 MCAP or sqlite3) writes a scan folder.
+    Import(cmd::import::ImportArgs),
     /// Find the workpiece by its tag in a piercing-time shot; plan approach/pierce/retract tool poses (plan.json, URScript).
     Pierce(cmd::pierce::PierceArgs),
     /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
@@ -75,6 +77,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => cmd::info::run(&args),
         Command::Evaluate(args) => cmd::evaluate::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),
+        Command::Import(args) => cmd::import::run(&args),
         Command::Pierce(args) => cmd::pierce::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),

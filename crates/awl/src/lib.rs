@@ -24,6 +24,7 @@ pub mod pipeline;
 pub mod registration;
 pub mod render;
 pub mod report_html;
+pub mod rosbag;
 pub mod segment;
 pub mod sim;
 pub mod smooth;
