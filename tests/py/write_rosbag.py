@@ -133,24 +133,45 @@ def main():
     ee_camera = pose(scan["T_ee_camera"])
 
     still_ns = 0 if args.bad == "no-still" else int(args.still_s * 1e9)
-    move_ns = int(args.move_s * 1e9)
-    starts = [T0_NS + i * (still_ns + move_ns) for i in range(len(views))]
+
+    def angle(a, b):
+        return 2 * np.arccos(min(1.0, abs(float(np.dot(a[1], b[1])))))
+
+    # each move as long as a real rig needs: peak speeds (1.5x the mean under a smoothstep) of
+    # 0.5 m/s and 45 deg/s for the base, 0.25 m/s and 45 deg/s for the flange
+    moves_ns = []
+    for i in range(len(views) - 1):
+        need = [
+            args.move_s,
+            1.5 * np.linalg.norm(world_base[i + 1][0] - world_base[i][0]) / 0.5,
+            1.5 * angle(world_base[i], world_base[i + 1]) / np.radians(45),
+            1.5 * np.linalg.norm(base_ee[i + 1][0] - base_ee[i][0]) / 0.25,
+            1.5 * angle(base_ee[i], base_ee[i + 1]) / np.radians(45),
+        ]
+        moves_ns.append(int(max(need) * 1e9))
+    starts = [T0_NS]
+    for m in moves_ns:
+        starts.append(starts[-1] + still_ns + m)
     # no still period at all: the recording ends as the arm reaches the last view
-    end_ns = starts[-1] + (still_ns if still_ns else 0)
+    end_ns = starts[-1] + still_ns
 
     def at(ns):
         """(view index, world_base, base_ee) at time ns: still at a view or moving to the next."""
         for i, a in enumerate(starts):
             if ns < a + still_ns or i == len(views) - 1:
                 return i, world_base[i], base_ee[i]
-            if ns < a + still_ns + move_ns:
-                u = (ns - a - still_ns) / move_ns
+            if ns < a + still_ns + moves_ns[i]:
+                u = (ns - a - still_ns) / moves_ns[i]
                 s = u * u * (3 - 2 * u)
                 return i, interp(world_base[i], world_base[i + 1], s), interp(base_ee[i], base_ee[i + 1], s)
         raise AssertionError
 
+    cache = {}
+
     def image(i, kind):
-        return np.asarray(PilImage.open(scan_dir / views[i][kind]))
+        if (i, kind) not in cache:
+            cache[(i, kind)] = np.asarray(PilImage.open(scan_dir / views[i][kind]))
+        return cache[(i, kind)]
 
     storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
     out = Path(args.out)
@@ -187,50 +208,59 @@ def main():
         p = np.array([cam["fx"], 0, cam["cx"], 0, 0, cam["fy"], cam["cy"], 0, 0, 0, 1, 0], dtype=np.float64)
         roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         width, height = cam["width"], cam["height"]
-        ns = T0_NS + int(args.image_offset_ms * 1e6)
-        image_step = int(1e9 / args.image_hz)
-        while ns <= end_ns:
-            i, _, _ = at(ns)
+        encoded = {}
+
+        def depth_msg(ns, i):
             depth_mm = image(i, "depth").astype(np.uint16)
             if args.depth == "16UC1":
                 data, step = depth_mm.astype("<u2").tobytes(), width * 2
             else:
                 data, step = (depth_mm.astype(np.float32) * np.float32(0.001)).astype("<f4").tobytes(), width * 4
-            msg = T["sensor_msgs/msg/Image"](
+            return T["sensor_msgs/msg/Image"](
                 header=header(ns, CAMERA_FRAME), height=height, width=width, encoding=args.depth, is_bigendian=0,
                 step=step, data=np.frombuffer(data, dtype=np.uint8),
             )
-            events.append((ns, 2, c_depth, msg, "sensor_msgs/msg/Image"))
-            info = T["sensor_msgs/msg/CameraInfo"](
+
+        def info_msg(ns):
+            return T["sensor_msgs/msg/CameraInfo"](
                 header=header(ns, CAMERA_FRAME), height=height, width=width, distortion_model="plumb_bob",
                 d=np.array(d, dtype=np.float64), k=k, r=np.eye(3).reshape(9), p=p, binning_x=0, binning_y=0, roi=roi,
             )
-            events.append((ns, 3, c_info, info, "sensor_msgs/msg/CameraInfo"))
-            cns = ns + int(args.color_delay_ms * 1e6)
-            if args.color != "none":
-                rgb = image(i, "color")[:, :, :3]
-                if args.color in ("jpeg", "png"):
+
+        def color_msg(cns, i):
+            rgb = image(i, "color")[:, :, :3]
+            if args.color in ("jpeg", "png"):
+                if i not in encoded:
                     buf = io.BytesIO()
                     PilImage.fromarray(rgb).save(buf, format="JPEG" if args.color == "jpeg" else "PNG", quality=95)
-                    msg = T["sensor_msgs/msg/CompressedImage"](
-                        header=header(cns, CAMERA_FRAME), format=f"rgb8; {args.color} compressed bgr8",
-                        data=np.frombuffer(buf.getvalue(), dtype=np.uint8),
-                    )
-                    events.append((cns, 4, c_color, msg, "sensor_msgs/msg/CompressedImage"))
-                else:
-                    if args.color == "yuv422":
-                        raw, cstep = np.zeros((height, width, 2), np.uint8).tobytes(), width * 2
-                    else:
-                        raw, cstep = (rgb if args.color == "rgb8" else rgb[:, :, ::-1]).tobytes(), width * 3
-                    msg = T["sensor_msgs/msg/Image"](
-                        header=header(cns, CAMERA_FRAME), height=height, width=width, encoding=args.color,
-                        is_bigendian=0, step=cstep, data=np.frombuffer(raw, dtype=np.uint8),
-                    )
-                    events.append((cns, 4, c_color, msg, "sensor_msgs/msg/Image"))
+                    encoded[i] = np.frombuffer(buf.getvalue(), dtype=np.uint8)
+                return T["sensor_msgs/msg/CompressedImage"](
+                    header=header(cns, CAMERA_FRAME), format=f"rgb8; {args.color} compressed bgr8", data=encoded[i]
+                )
+            if args.color == "yuv422":
+                raw, cstep = np.zeros((height, width, 2), np.uint8).tobytes(), width * 2
+            else:
+                raw, cstep = (rgb if args.color == "rgb8" else rgb[:, :, ::-1]).tobytes(), width * 3
+            return T["sensor_msgs/msg/Image"](
+                header=header(cns, CAMERA_FRAME), height=height, width=width, encoding=args.color,
+                is_bigendian=0, step=cstep, data=np.frombuffer(raw, dtype=np.uint8),
+            )
+
+        # the messages are built as they are written (a long bag is never held in memory)
+        color_type = "sensor_msgs/msg/CompressedImage" if args.color in ("jpeg", "png") else "sensor_msgs/msg/Image"
+        ns = T0_NS + int(args.image_offset_ms * 1e6)
+        image_step = int(1e9 / args.image_hz)
+        while ns <= end_ns:
+            i, _, _ = at(ns)
+            events.append((ns, 2, c_depth, lambda ns=ns, i=i: depth_msg(ns, i), "sensor_msgs/msg/Image"))
+            events.append((ns, 3, c_info, lambda ns=ns: info_msg(ns), "sensor_msgs/msg/CameraInfo"))
+            cns = ns + int(args.color_delay_ms * 1e6)
+            if args.color != "none":
+                events.append((cns, 4, c_color, lambda cns=cns, i=i: color_msg(cns, i), color_type))
             ns += image_step
         events.sort(key=lambda e: (e[0], e[1]))
         for ns, _, conn, msg, typ in events:
-            w.write(conn, ns, TS.serialize_cdr(msg, typ))
+            w.write(conn, ns, TS.serialize_cdr(msg() if callable(msg) else msg, typ))
 
     if args.truth:
         moving = []
@@ -238,7 +268,7 @@ def main():
             # stamps between TF samples (a third of the way) while the arm and the base move
             a = starts[i] + still_ns
             for j in range(1, 8):
-                ns = a + j * move_ns // 8
+                ns = a + j * moves_ns[i] // 8
                 ns = ns - (ns - T0_NS) % tf_step + tf_step // 3
                 _, wb, be = at(ns)
                 moving.append({"stamp_ns": ns, "T_world_base": to_rows(wb), "T_base_ee": to_rows(be)})

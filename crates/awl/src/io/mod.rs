@@ -58,7 +58,11 @@ pub fn temp_sibling(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
-fn is_non_empty_dir(dir: &Path) -> Result<bool> {
+/// Whether `dir` is a folder with something in it (`false` when it does not exist).
+///
+/// # Errors
+/// [`Error::Invalid`] when `dir` is a file; [`Error::Io`] when it cannot be read.
+pub fn is_non_empty_dir(dir: &Path) -> Result<bool> {
     match fs::read_dir(dir) {
         Ok(mut entries) => Ok(entries.next().is_some()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),

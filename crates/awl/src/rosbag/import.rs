@@ -481,6 +481,12 @@ pub fn import_rosbag(
     progress: &mut dyn FnMut(ImportProgress),
 ) -> Result<ImportReport> {
     let bag = Bag::open(bag_path)?;
+    if !params.overwrite && crate::io::is_non_empty_dir(out)? {
+        return Err(Error::invalid(
+            out.display().to_string(),
+            "the output folder exists and is not empty (pass --force to replace it)",
+        ));
+    }
     let bag_name = bag.path.display().to_string();
     let (topics, tf, mut warnings) = survey(&bag, params, progress)?;
     let depth_types = "sensor_msgs/Image 16UC1 or 32FC1, or CompressedImage compressedDepth";
