@@ -70,7 +70,7 @@ pub(crate) fn for_each(
         let Some((_, topic, type_name, _)) = topics.iter().find(|t| t.0 == id) else { continue };
         f(&BagMessage { topic, type_name, log_time_ns: stamp.max(0) as u64, data })?;
         count += 1;
-        if count % 64 == 0 {
+        if count.is_multiple_of(64) {
             progress(count);
         }
     }

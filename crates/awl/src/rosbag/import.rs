@@ -235,13 +235,13 @@ fn survey(
                 let fixed = m.topic.ends_with("tf_static");
                 for t in cdr::decode_tf_message(m.data).map_err(|e| bad_message(bag, m.topic, ordinal, &e))? {
                     let pose = t.parent_from_child().map_err(|e| bad_message(bag, m.topic, ordinal, &e))?;
-                    if let Some(other) = tf.add(&t.header.frame_id, &t.child_frame_id, t.header.stamp_ns, pose, fixed) {
-                        if warnings.len() < 10 {
-                            warnings.push(format!(
-                                "TF: `{}` has a second parent `{other}` on {} (kept its first, `{}`)",
-                                t.child_frame_id, m.topic, t.header.frame_id
-                            ));
-                        }
+                    if let Some(other) = tf.add(&t.header.frame_id, &t.child_frame_id, t.header.stamp_ns, pose, fixed)
+                        && warnings.len() < 10
+                    {
+                        warnings.push(format!(
+                            "TF: `{}` has a second parent `{other}` on {} (kept its first, `{}`)",
+                            t.child_frame_id, m.topic, t.header.frame_id
+                        ));
                     }
                 }
             }
@@ -270,16 +270,23 @@ fn is_color_topic(seen: &TopicSeen) -> bool {
 }
 
 /// The topic `given`, checked to be in the bag and of one of `types`; or the one candidate.
+/// What a topic choice is for: its name in errors, its flag, the types it takes, who qualifies,
+/// and whether the bag must have one.
+struct TopicRule<'a> {
+    what: &'a str,
+    flag: &'a str,
+    types: &'a str,
+    candidate: &'a dyn Fn(&TopicSeen) -> bool,
+    required: bool,
+}
+
 fn choose_topic(
     bag: &Bag,
     topics: &BTreeMap<String, TopicSeen>,
     given: Option<&str>,
-    what: &str,
-    flag: &str,
-    types: &str,
-    candidate: &dyn Fn(&TopicSeen) -> bool,
-    required: bool,
+    rule: &TopicRule<'_>,
 ) -> Result<Option<String>> {
+    let TopicRule { what, flag, types, candidate, required } = *rule;
     let bag_name = bag.path.display().to_string();
     if let Some(topic) = given {
         let Some(seen) = topics.get(topic) else {
@@ -494,11 +501,13 @@ pub fn import_rosbag(
         &bag,
         &topics,
         params.depth_topic.as_deref(),
-        "depth",
-        "--depth-topic",
-        depth_types,
-        &is_depth_topic,
-        true,
+        &TopicRule {
+            what: "depth",
+            flag: "--depth-topic",
+            types: depth_types,
+            candidate: &is_depth_topic,
+            required: true,
+        },
     )?
     .unwrap_or_default();
     let color_types = "sensor_msgs/Image or CompressedImage";
@@ -506,11 +515,13 @@ pub fn import_rosbag(
         &bag,
         &topics,
         params.color_topic.as_deref(),
-        "color",
-        "--color-topic",
-        color_types,
-        &is_color_topic,
-        params.capture,
+        &TopicRule {
+            what: "color",
+            flag: "--color-topic",
+            types: color_types,
+            candidate: &is_color_topic,
+            required: params.capture,
+        },
     )?;
     let info_given = params.camera_info_topic.clone().or_else(|| {
         // beside the depth topic (`/camera/depth/image_rect_raw` -> `/camera/depth/camera_info`) when there
@@ -522,11 +533,13 @@ pub fn import_rosbag(
         &bag,
         &topics,
         info_given.as_deref(),
-        "camera-info",
-        "--camera-info-topic",
-        "sensor_msgs/CameraInfo",
-        &|s: &TopicSeen| s.type_name == CAMERA_INFO,
-        true,
+        &TopicRule {
+            what: "camera-info",
+            flag: "--camera-info-topic",
+            types: "sensor_msgs/CameraInfo",
+            candidate: &|s: &TopicSeen| s.type_name == CAMERA_INFO,
+            required: true,
+        },
     )?
     .unwrap_or_default();
     let depth = &topics[&depth_topic];

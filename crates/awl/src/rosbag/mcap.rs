@@ -55,7 +55,7 @@ pub(crate) fn for_each(
         }
         let type_name = channel.schema.as_ref().map_or("", |s| s.name.as_str());
         f(&BagMessage { topic: &channel.topic, type_name, log_time_ns: message.log_time, data: &message.data })?;
-        if count % 64 == 0 {
+        if count.is_multiple_of(64) {
             progress(read.get());
         }
     }
