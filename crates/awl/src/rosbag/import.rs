@@ -719,6 +719,7 @@ pub fn import_rosbag(
                 })
                 .collect();
             write_scan(&Scan {
+                warnings: Vec::new(),
                 dir: tmp.to_path_buf(),
                 camera: Some(camera),
                 ee_from_camera,
