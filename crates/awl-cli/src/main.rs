@@ -25,6 +25,8 @@ enum Command {
     Evaluate(cmd::evaluate::EvaluateArgs),
     /// Fuse a scan folder's views into one model of the object: model.ply + report.json.
     Fuse(cmd::fuse::FuseArgs),
+    /// Import a recording of the rig: `awl import rosbag BAG -o SCAN_DIR` (ROS 2 MCAP or sqlite3) writes a scan folder.
+    Import(cmd::import::ImportArgs),
     /// Find the workpiece by its tag in a piercing-time shot; plan approach/pierce/retract tool poses (plan.json, URScript).
     Pierce(cmd::pierce::PierceArgs),
     /// Send a plan's robot program to a UR (primary/secondary interface) or Techman (listen node) controller, or print its bytes.
@@ -77,6 +79,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => cmd::info::run(&args),
         Command::Evaluate(args) => cmd::evaluate::run(&args),
         Command::Fuse(args) => cmd::fuse::run(&args),
+        Command::Import(args) => cmd::import::run(&args),
         Command::Pierce(args) => cmd::pierce::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Send(args) => cmd::send::run(&args),

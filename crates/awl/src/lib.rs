@@ -25,6 +25,7 @@ pub mod registration;
 pub mod render;
 pub mod report_html;
 pub mod robot;
+pub mod rosbag;
 pub mod segment;
 pub mod sim;
 pub mod smooth;

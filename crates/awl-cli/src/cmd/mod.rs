@@ -5,6 +5,7 @@ pub mod common;
 pub mod demo;
 pub mod evaluate;
 pub mod fuse;
+pub mod import;
 pub mod info;
 pub mod pierce;
 pub mod register;

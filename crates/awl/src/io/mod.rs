@@ -59,6 +59,52 @@ pub fn temp_sibling(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
+/// Whether `dir` is a folder with something in it (`false` when it does not exist).
+///
+/// # Errors
+/// [`Error::Invalid`] when `dir` is a file; [`Error::Io`] when it cannot be read.
+pub fn is_non_empty_dir(dir: &Path) -> Result<bool> {
+    match fs::read_dir(dir) {
+        Ok(mut entries) => Ok(entries.next().is_some()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
+            Err(Error::invalid(dir.display().to_string(), "exists and is not a folder"))
+        }
+        Err(e) => Err(Error::io(dir, e)),
+    }
+}
+
+/// Writes the folder `dir` atomically: `fill` writes everything into a hidden temporary sibling
+/// folder, which is renamed into place when it succeeds (and removed when it fails), so `dir`
+/// appears complete or not at all (an existing `dir` is kept until the new one is in place).
+///
+/// # Errors
+/// [`Error::Invalid`] when `dir` exists, is not empty and `overwrite` is false (or is a file);
+/// `fill`'s error, or [`Error::Io`] naming the folder when the move fails.
+pub fn write_folder_atomically(dir: &Path, overwrite: bool, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if is_non_empty_dir(dir)? && !overwrite {
+        return Err(Error::invalid(
+            dir.display().to_string(),
+            "the output folder exists and is not empty (pass --force to replace it)",
+        ));
+    }
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    let tmp = temp_sibling(dir);
+    if tmp.exists() {
+        fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+    }
+    let result = fs::create_dir_all(&tmp)
+        .map_err(|e| Error::io(&tmp, e))
+        .and_then(|()| fill(&tmp))
+        .and_then(|()| crate::io::outputs::replace_folder(&tmp, dir));
+    if result.is_err() {
+        let _ = fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
 /// Lower-case file extension, or "" when there is none.
 pub fn extension(path: &Path) -> String {
     path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()

@@ -91,6 +91,8 @@ pub struct Scan {
     pub tag: Option<TagSpec>,
     /// The views, in capture order.
     pub views: Vec<ViewSpec>,
+    /// What the reader fixed and the user should know (a pose re-orthonormalised, naming its field).
+    pub warnings: Vec<String>,
 }
 
 /// A view loaded into memory.
@@ -215,6 +217,20 @@ struct RawScan {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     tag: Option<TagSpec>,
     views: Vec<RawView>,
+}
+
+/// [`pose_field`], re-orthonormalising a rotation off by float32 rounding
+/// ([`crate::transform::FLOAT32_RIGID_TOLERANCE`]) with a warning naming the field.
+fn pose_field_lenient(path: &Path, field: &str, rows: &Rows, warnings: &mut Vec<String>) -> Result<Isometry3<f64>> {
+    let (pose, deviation) =
+        crate::transform::isometry_from_rows_reorthonormalised(rows).map_err(|m| Error::field(path, field, m))?;
+    if let Some(dev) = deviation {
+        warnings.push(format!(
+            "{}: `{field}`: rotation off orthonormal by {dev:.1e} (float32 rounding?), re-orthonormalised",
+            path.display()
+        ));
+    }
+    Ok(pose)
 }
 
 /// Parses a 4x4 pose field, naming the file and the field when it is not rigid.
@@ -348,7 +364,13 @@ fn camera_from_raw(path: &Path, raw: &RawCamera) -> Result<DepthCamera> {
     })
 }
 
-fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Result<ViewSpec> {
+fn view_from_raw(
+    path: &Path,
+    i: usize,
+    raw: RawView,
+    has_hand_eye: bool,
+    warnings: &mut Vec<String>,
+) -> Result<ViewSpec> {
     let field = |name: &str| format!("views[{i}].{name}");
     let data = match (raw.depth, raw.points) {
         (Some(depth), None) => ViewData::Depth { depth, color: raw.color },
@@ -363,15 +385,15 @@ fn view_from_raw(path: &Path, i: usize, raw: RawView, has_hand_eye: bool) -> Res
     };
     let pose = match (raw.world_camera, raw.world_base, raw.base_ee) {
         (Some(rows), None, None) => {
-            ViewPose::Camera { world_from_camera: pose_field(path, &field("T_world_camera"), &rows)? }
+            ViewPose::Camera { world_from_camera: pose_field_lenient(path, &field("T_world_camera"), &rows, warnings)? }
         }
         (None, Some(wb), Some(be)) => {
             if !has_hand_eye {
                 return Err(Error::field(path, "T_ee_camera", format!("missing, but views[{i}] gives T_base_ee")));
             }
             ViewPose::Chain {
-                world_from_base: pose_field(path, &field("T_world_base"), &wb)?,
-                base_from_ee: pose_field(path, &field("T_base_ee"), &be)?,
+                world_from_base: pose_field_lenient(path, &field("T_world_base"), &wb, warnings)?,
+                base_from_ee: pose_field_lenient(path, &field("T_base_ee"), &be, warnings)?,
             }
         }
         (Some(_), _, _) => {
@@ -409,7 +431,9 @@ pub fn read_scan(dir_or_manifest: &Path) -> Result<Scan> {
         return Err(Error::field(&path, "views", "the scan has no views"));
     }
     let camera = raw.camera.as_ref().map(|c| camera_from_raw(&path, c)).transpose()?;
-    let ee_from_camera = raw.ee_camera.map(|rows| pose_field(&path, "T_ee_camera", &rows)).transpose()?;
+    let mut warnings = Vec::new();
+    let ee_from_camera =
+        raw.ee_camera.map(|rows| pose_field_lenient(&path, "T_ee_camera", &rows, &mut warnings)).transpose()?;
     if let Some(tag) = &raw.tag {
         positive(&path, "tag.size", tag.size_m)?;
     }
@@ -417,12 +441,12 @@ pub fn read_scan(dir_or_manifest: &Path) -> Result<Scan> {
         .views
         .into_iter()
         .enumerate()
-        .map(|(i, v)| view_from_raw(&path, i, v, ee_from_camera.is_some()))
+        .map(|(i, v)| view_from_raw(&path, i, v, ee_from_camera.is_some(), &mut warnings))
         .collect::<Result<Vec<_>>>()?;
     if camera.is_none() && views.iter().any(|v| matches!(v.data, ViewData::Depth { .. })) {
         return Err(Error::field(&path, "camera", "missing, but views have depth images"));
     }
-    Ok(Scan { dir, camera, ee_from_camera, tag: raw.tag, views })
+    Ok(Scan { dir, camera, ee_from_camera, tag: raw.tag, views, warnings })
 }
 
 /// Writes `scan.dir/scan.json` atomically (images and point files are the caller's to write).

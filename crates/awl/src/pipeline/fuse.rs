@@ -135,7 +135,8 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     config.check()?;
     let start = Instant::now();
     let mut stages = Vec::new();
-    let mut warnings = Vec::new();
+    // what reading the scan fixed (a pose re-orthonormalised) comes first
+    let mut warnings = scan.warnings.clone();
     let preparer = Preparer::new(scan, config);
     let focus = preparer.focus;
     if config.roi.radius_m.is_some() && focus.is_none() {

@@ -310,7 +310,17 @@ mod tests {
                 poses.push(Some(world_from_base * base_from_ee * truth));
             }
         }
-        (Scan { dir: ".".into(), camera: None, ee_from_camera: Some(recorded), tag: None, views }, poses)
+        (
+            Scan {
+                dir: ".".into(),
+                camera: None,
+                ee_from_camera: Some(recorded),
+                tag: None,
+                views,
+                warnings: Vec::new(),
+            },
+            poses,
+        )
     }
 
     #[test]

@@ -26,6 +26,15 @@ pub(crate) fn drop_floor(
             let removed = cloud.len() - removal.kept.len();
             let n = removal.floor.normal;
             let report = FloorReport { normal: [n.x, n.y, n.z], offset_m: removal.floor.offset_m, removed };
+            if 2 * removed > cloud.len() {
+                warnings.push(format!(
+                    "floor removal took {removed} of {} points ({:.0} %), everything within {} mm of the plane: if that cut \
+                     into the object, lower `isolate.floor.plane.distance_m` or set `isolate.remove_floor = false`",
+                    cloud.len(),
+                    100.0 * removed as f64 / cloud.len() as f64,
+                    config.floor.plane.distance_m * 1e3
+                ));
+            }
             Ok((cloud.select(&removal.kept), Some(report)))
         }
         Err(e) => {
@@ -64,6 +73,17 @@ pub(crate) fn keep_object(
         return Ok((cloud, None));
     };
     let members = clustering.members(label);
+    if config.seed_point.is_none() && 2 * members.len() < cloud.len() {
+        warnings.push(format!(
+            "clustering kept {} of {} points ({:.0} %), the largest of {} clusters: if the object is in pieces, raise \
+             `isolate.dbscan.eps_m` (now {} mm), give `isolate.seed_point`, or set `isolate.cluster = false`",
+            members.len(),
+            cloud.len(),
+            100.0 * members.len() as f64 / cloud.len() as f64,
+            clustering.cluster_count(),
+            config.dbscan.eps_m * 1e3
+        ));
+    }
     let report = ClusterReport {
         clusters: clustering.cluster_count(),
         kept: members.len(),
@@ -97,8 +117,38 @@ mod tests {
         assert_eq!((picked.len(), report.map(|r| r.removed_clusters)), (100, Some(400)));
         assert!(picked.points.iter().all(|p| p.x >= 0.5));
         assert!(warnings.is_empty(), "{warnings:?}");
+        // the largest of three similar clusters is under half the points: said, with the keys to change
+        let mut three = two_patches();
+        three.points.truncate(400);
+        three.points.extend((0..300).map(|k| Point3::new(1.0 + 0.002 * (k % 15) as f32, 0.002 * (k / 15) as f32, 0.0)));
+        three.points.extend((0..300).map(|k| Point3::new(2.0 + 0.002 * (k % 15) as f32, 0.002 * (k / 15) as f32, 0.0)));
+        let (kept, _) = keep_object(three, &config, &mut warnings).expect("three");
+        assert_eq!(kept.len(), 400);
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("kept 400 of 1000 points") && warnings[0].contains("isolate.dbscan.eps_m"),
+            "{warnings:?}"
+        );
         let bad = IsolateConfig { seed_point: Some([f64::NAN, 0.0, 0.0]), ..config };
         let e = keep_object(two_patches(), &bad, &mut warnings).expect_err("NaN seed point").to_string();
         assert!(e.contains("isolate.seed_point"), "{e}");
+    }
+
+    /// A floor of 2500 points under a 400-point object: taking most of the points is said, with the key.
+    #[test]
+    fn floor_taking_most_points_is_said() {
+        let mut points: Vec<Point3<f32>> =
+            (0..2500).map(|k| Point3::new(0.01 * (k % 50) as f32, 0.01 * (k / 50) as f32, 0.0)).collect();
+        points
+            .extend((0..400).map(|k| Point3::new(0.2 + 0.002 * (k % 20) as f32, 0.2, 0.05 + 0.002 * (k / 20) as f32)));
+        let mut warnings = Vec::new();
+        let (rest, report) =
+            drop_floor(PointCloud::from_points(points), &IsolateConfig::default(), &mut warnings).expect("floor");
+        assert_eq!((rest.len(), report.map(|r| r.removed)), (400, Some(2500)));
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0].contains("took 2500 of 2900 points") && warnings[0].contains("isolate.floor.plane.distance_m"),
+            "{warnings:?}"
+        );
     }
 }

@@ -268,6 +268,7 @@ pub fn simulate_capture(p: &CaptureParams) -> Result<Simulation> {
         ee_from_camera: Some(recorded_ee_from_camera),
         tag: Some(tag),
         views: spec_views,
+        warnings: Vec::new(),
     };
     let truth = Truth {
         cad: PathBuf::from("cad.ply"),

@@ -135,6 +135,7 @@ pub(crate) fn records(
         ee_from_camera: Some(ee_from_camera * hand_eye_error(params.seed, scale)),
         tag: Some(TagSpec { family: "tag36h11".into(), id: TAG_ID, size_m: wp.tag_size }),
         views,
+        warnings: Vec::new(),
     };
     (scan, truth(wp, params, plan, noise))
 }

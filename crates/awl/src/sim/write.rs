@@ -11,7 +11,7 @@ use crate::io::image::{write_color_png, write_depth_png};
 use crate::io::ply::write_ply_mesh;
 use crate::io::scan::{ViewData, write_scan};
 use crate::io::truth::write_truth;
-use crate::io::{temp_sibling, write_atomic};
+use crate::io::{write_atomic, write_folder_atomically};
 use crate::sim::{LabelImage, Simulation};
 
 fn label_png(image: &LabelImage) -> Result<Vec<u8>> {
@@ -23,17 +23,6 @@ fn label_png(image: &LabelImage) -> Result<Vec<u8>> {
     let written = encoder.write_header().and_then(|mut w| w.write_image_data(&image.data));
     written.map_err(|e| Error::invalid("label PNG encoder", e.to_string()))?;
     Ok(out)
-}
-
-fn is_non_empty_dir(dir: &Path) -> Result<bool> {
-    match fs::read_dir(dir) {
-        Ok(mut entries) => Ok(entries.next().is_some()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
-        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
-            Err(Error::invalid(dir.display().to_string(), "exists and is not a folder"))
-        }
-        Err(e) => Err(Error::io(dir, e)),
-    }
 }
 
 fn write_views(tmp: &Path, sim: &Simulation) -> Result<()> {
@@ -80,22 +69,5 @@ fn write_all(tmp: &Path, sim: &Simulation) -> Result<()> {
 /// [`Error::Invalid`] when `dir` exists, is not empty and `overwrite` is false (or is a file);
 /// [`Error::Io`] naming the file when writing fails (the temporary folder is removed).
 pub fn write_simulation(dir: &Path, sim: &Simulation, overwrite: bool) -> Result<()> {
-    if is_non_empty_dir(dir)? && !overwrite {
-        return Err(Error::invalid(
-            dir.display().to_string(),
-            "the output folder exists and is not empty (pass --force to replace it)",
-        ));
-    }
-    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
-        fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-    }
-    let tmp = temp_sibling(dir);
-    if tmp.exists() {
-        fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    }
-    let result = write_all(&tmp, sim).and_then(|()| crate::io::outputs::replace_folder(&tmp, dir));
-    if result.is_err() {
-        let _ = fs::remove_dir_all(&tmp);
-    }
-    result
+    write_folder_atomically(dir, overwrite, |tmp| write_all(tmp, sim))
 }
