@@ -43,7 +43,7 @@ impl Default for PredictParams {
         Self {
             model_sigma_m: 0.0004,
             face_centre_sigma_m: 0.0004,
-            axis_sigma_rad: 0.15f64.to_radians(),
+            axis_sigma_rad: 0.25f64.to_radians(),
             confidence: 0.95,
         }
     }
