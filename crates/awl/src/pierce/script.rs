@@ -130,7 +130,6 @@ pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Resul
         }
     }
     let _ = writeln!(s, "end");
-    let _ = writeln!(s, "awl_pierce()");
     Ok(s)
 }
 
