@@ -337,9 +337,9 @@ pub fn locate(
         }
         None => {
             let tag_px = params.tag_corner_px;
-            let fits: Vec<(Isometry3<f64>, Matrix6<f64>)> = if depth_applied {
+            let fits: Vec<(usize, Matrix6<f64>)> = if depth_applied {
                 let c = registration_covariance(&params.noise);
-                loaded.iter().map(|l| (l.world_from_camera, c)).collect()
+                (0..loaded.len()).map(|i| (i, c)).collect()
             } else {
                 estimate
                     .detections
@@ -348,10 +348,7 @@ pub fn locate(
                     .filter_map(|d| {
                         let l = loaded.get(d.view)?;
                         let camera_from_tag = l.world_from_camera.inverse() * d.world_from_tag?;
-                        Some((
-                            l.world_from_camera,
-                            tag_covariance(&camera.intrinsics, tag.size_m, &camera_from_tag, tag_px),
-                        ))
+                        Some((d.view, tag_covariance(&camera.intrinsics, tag.size_m, &camera_from_tag, tag_px)))
                     })
                     .collect()
             };
@@ -432,10 +429,10 @@ fn tag_covariance(
 }
 
 /// `T_base_model`'s covariance (base frame, `(ω, v)`) from `fits`: per view that placed the model,
-/// its `T_base_camera` and its fit's covariance (camera frame). The hand-eye's error is common to
+/// its index (into `loaded` and `flanges`) and its fit's covariance (camera frame). The hand-eye's error is common to
 /// the views; the arm's and the fit's are averaged over them.
 fn transported_covariance(
-    fits: &[(Isometry3<f64>, Matrix6<f64>)],
+    fits: &[(usize, Matrix6<f64>)],
     flanges: &[Option<Isometry3<f64>>],
     loaded: &[LoadedView],
     prior: Option<&HandEyePrior>,
@@ -449,16 +446,13 @@ fn transported_covariance(
     let arm = Matrix6::from_diagonal(&Vector6::new(ar, ar, ar, at, at, at));
     let mut mean_ad = Matrix6::zeros();
     let mut averaged = Matrix6::zeros();
-    for (base_from_camera, fit) in fits {
-        let ad = adjoint(base_from_camera);
+    for &(i, ref fit) in fits {
+        let base_from_camera = loaded[i].world_from_camera;
+        let ad = adjoint(&base_from_camera);
         mean_ad += ad / n;
         averaged += ad * fit * ad.transpose() / (n * n);
         // the arm's error at the view's flange (at the camera when the view has no flange)
-        let flange = loaded
-            .iter()
-            .position(|l| l.world_from_camera == *base_from_camera)
-            .and_then(|i| flanges.get(i).copied().flatten())
-            .unwrap_or(*base_from_camera);
+        let flange = flanges.get(i).copied().flatten().unwrap_or(base_from_camera);
         let af = adjoint(&flange);
         averaged += af * arm * af.transpose() / (n * n);
     }
