@@ -294,7 +294,7 @@ mod scan {
         let params = config.registration.joint_params();
         let run = || {
             let mut poses = start.clone();
-            let stats = refine_jointly(&clouds, &mut poses, 0, &params).expect("joint");
+            let stats = refine_jointly(&clouds, &mut poses, 0, &[], &params).expect("joint");
             (poses, stats)
         };
         let (poses, stats) = pool(threads).install(run);

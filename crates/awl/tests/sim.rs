@@ -24,7 +24,7 @@ use parry3d_f64::math::Vector as PVector;
 use parry3d_f64::query::{PointQuery, Ray, RayCast};
 
 fn params(scene: SceneKind, noise: NoiseLevel, seed: u64, views: usize) -> SimParams {
-    SimParams { scene, views, seed, noise, shot: None, camera_seed: None }
+    SimParams { scene, views, seed, noise, shot: None, camera_seed: None, bare: false }
 }
 
 fn cached(cell: &'static OnceLock<Simulation>, p: SimParams) -> &'static Simulation {

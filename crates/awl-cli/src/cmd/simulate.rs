@@ -76,6 +76,10 @@ pub struct SimulateArgs {
     /// taken with the same camera. Default: --seed.
     #[arg(long)]
     pub camera_seed: Option<u64>,
+    /// The workpiece alone on the floor: no clutter boxes, no wall (scan mode only). With the
+    /// cylinder, nothing then constrains the views' spin about its axis.
+    #[arg(long, conflicts_with_all = ["shot", "capture"])]
+    pub bare: bool,
     /// Output scan folder (must not exist or be empty, unless --force).
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
@@ -105,7 +109,7 @@ fn params(args: &SimulateArgs) -> SimParams {
         ShotArg::Tilt30 => ShotPose::Tilt30,
     });
     let views = args.views.unwrap_or(if shot.is_some() { 2 } else { 12 });
-    SimParams { scene, views, seed: args.seed, noise, shot, camera_seed: args.camera_seed }
+    SimParams { scene, views, seed: args.seed, noise, shot, camera_seed: args.camera_seed, bare: args.bare }
 }
 
 fn capture_params(args: &SimulateArgs) -> CaptureParams {

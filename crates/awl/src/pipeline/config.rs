@@ -109,6 +109,7 @@ impl Default for RegistrationConfig {
                 levels: vec![level(0.015, 0.10, 30), level(0.006, 0.03, 30), level(0.003, 0.01, 30)],
                 convergence_translation_m: 1e-4,
                 convergence_rotation_rad: 1e-4,
+                unobserved_ratio: 1e-3,
                 ..IcpParams::default()
             },
             accept: AcceptanceRule::default(),

@@ -3,7 +3,7 @@
 //! view against all the others, then the joint refinement of all of them at once (which undoes the
 //! drift of the sequential pass). The anchor view (the first usable one) fixes the model frame.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 
 use super::config::{AcceptanceRule, RegistrationConfig, RejectPolicy};
 use super::prepare::{PreparedView, Views};
@@ -11,7 +11,9 @@ use super::report::{ViewReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelAccumulator, VoxelParams, downsample};
-use crate::registration::{IcpParams, IcpResult, JointLevelStats, refine_jointly, register, register_levels};
+use crate::registration::{
+    IcpParams, IcpResult, JointLevelStats, Unobserved, refine_jointly, register, register_levels_expecting,
+};
 use crate::transform::rows_from_isometry;
 
 /// Final poses (`None`: left out) and one report per scan view.
@@ -45,10 +47,10 @@ fn judge(rule: &AcceptanceRule, r: &IcpResult, moved: (f64, f64)) -> std::result
     if r.inlier_rmse_m > rule.max_inlier_rmse_m {
         return Err(format!("inlier RMSE {:.2} mm > {:.2} mm", r.inlier_rmse_m * 1e3, rule.max_inlier_rmse_m * 1e3));
     }
-    if r.conditioning < rule.min_conditioning {
+    if r.observed_conditioning < rule.min_conditioning {
         return Err(format!(
             "ill-conditioned (degenerate geometry): {:.1e} < {:.1e}",
-            r.conditioning, rule.min_conditioning
+            r.observed_conditioning, rule.min_conditioning
         ));
     }
     if moved.0 > rule.max_correction_m {
@@ -82,6 +84,7 @@ pub(super) fn blank_report(index: usize, view: &std::result::Result<PreparedView
         fitness: 0.0,
         inlier_rmse_mm: 0.0,
         conditioning: 0.0,
+        unobserved: Vec::new(),
         converged: false,
         levels: Vec::new(),
     }
@@ -117,6 +120,11 @@ pub(super) fn settle(
     report: &mut ViewReport,
 ) -> Option<Isometry3<f64>> {
     record(report, result);
+    report.unobserved = result.unobserved.clone();
+    if std::env::var_os("AWL_DEBUG_HOLD").is_some() {
+        let d = result.target_from_source * view.seed.inverse();
+        eprintln!("HOLD view {} seq correction rot {:?} deg, trans {:?}; held {:?}", report.index, (d.rotation.scaled_axis() * 57.3).as_slice(), d.translation.vector.as_slice(), result.unobserved);
+    }
     match judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)) {
         Ok(()) => {
             report.status = ViewStatus::Accepted;
@@ -128,6 +136,16 @@ pub(super) fn settle(
                 report.status = ViewStatus::SeedKept;
                 view.seed
             })
+        }
+    }
+}
+
+/// Adds the directions `result` found unobserved to `symmetries` (the object's, as far as the
+/// views registered so far tell), once each.
+pub(super) fn note_symmetries(symmetries: &mut Vec<Unobserved>, result: &IcpResult) {
+    for u in &result.unobserved {
+        if !symmetries.iter().any(|s| s.same_as(u)) {
+            symmetries.push(u.clone());
         }
     }
 }
@@ -209,6 +227,7 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
     poses[anchor] = Some(seed_of(anchor));
     make_anchor(&mut reports[anchor]);
     let mut merged = vec![anchor];
+    let mut symmetries = Vec::new();
     let mut model = LevelModel::new(&config.icp, voxel)?;
     if let Ok(view) = &views[anchor] {
         model.add(&view.cloud.transformed(&seed_of(anchor)))?;
@@ -217,8 +236,9 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
         let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
         let i = remaining.remove(next_view(centre, &remaining, &merged));
         let Ok(view) = &views[i] else { continue };
-        let result = register_levels(&view.cloud, &model.levels(), &view.seed, &config.icp)?;
+        let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &symmetries)?;
         poses[i] = settle(config, view, &result, &mut reports[i]);
+        note_symmetries(&mut symmetries, &result);
         if let Some(pose) = poses[i] {
             model.add(&view.cloud.transformed(&pose))?;
             merged.push(i);
@@ -284,7 +304,10 @@ fn refine_joint(
     let clouds: Vec<&PointCloud> = members.iter().map(|m| &m.1.cloud).collect();
     let mut joint: Vec<Isometry3<f64>> = members.iter().map(|m| m.2).collect();
     let fixed = members.iter().position(|m| m.0 == anchor).unwrap_or(0);
-    let stats = refine_jointly(&clouds, &mut joint, fixed, &config.joint_params())?;
+    // each view's unobserved directions stay where the sequential pass held them
+    let held: Vec<Vec<Vector6<f64>>> =
+        members.iter().map(|m| reports[m.0].unobserved.iter().map(Unobserved::constraint).collect()).collect();
+    let stats = refine_jointly(&clouds, &mut joint, fixed, &held, &config.joint_params())?;
     // A view the joint step moved farther than its first gate left the basin it started in:
     // keep the sequential poses.
     let gate = config.joint_levels[0].max_correspondence_m;

@@ -69,6 +69,10 @@ pub struct ViewReport {
     pub inlier_rmse_mm: f64,
     /// Conditioning of the final ICP system.
     pub conditioning: f64,
+    /// The directions of motion the view's surface left unobserved against the model, held at the
+    /// seed (see `registration::icp`); empty when every direction is observed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unobserved: Vec<crate::registration::Unobserved>,
     /// Whether the finest ICP level converged.
     pub converged: bool,
     /// Per-level statistics of the last ICP run on this view.

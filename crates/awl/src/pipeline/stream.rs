@@ -11,13 +11,15 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use super::config::RegistrationConfig;
-use super::multiview::{LevelModel, Registered, blank_report, make_anchor, next_view, no_usable_view, place, settle};
+use super::multiview::{
+    LevelModel, Registered, blank_report, make_anchor, next_view, no_usable_view, note_symmetries, place, settle,
+};
 use super::prepare::{PreparedView, Preparer, Tally};
 use super::report::ViewReport;
 use crate::error::Result;
 use crate::filter::voxel::VoxelParams;
 use crate::filter::voxel_merge::VoxelMerge;
-use crate::registration::register_levels;
+use crate::registration::register_levels_expecting;
 
 /// What [`register_as_prepared`] gives.
 pub(crate) struct Streamed {
@@ -94,6 +96,7 @@ pub(crate) fn register_as_prepared(
     let seed = view.seed;
     merge(a, view, seed, &mut model, &mut feed.reports[a])?;
     let mut merged = vec![a];
+    let mut symmetries = Vec::new();
     register_seconds += start.elapsed().as_secs_f64();
     let centre = |i: usize| preparer.seed(i).map(|s| s.translation.vector).unwrap_or_default();
     while !remaining.is_empty() {
@@ -109,7 +112,7 @@ pub(crate) fn register_as_prepared(
             || guess.map(|g| (g, preparer.view(g))),
             || {
                 let start = Instant::now();
-                let r = register_levels(&view.cloud, &levels, &view.seed, &config.icp);
+                let r = register_levels_expecting(&view.cloud, &levels, &view.seed, &config.icp, &symmetries);
                 (r, start.elapsed().as_secs_f64())
             },
         );
@@ -121,6 +124,7 @@ pub(crate) fn register_as_prepared(
         let start = Instant::now();
         let (result, seconds) = registered;
         let result = result?;
+        note_symmetries(&mut symmetries, &result);
         if let Some(pose) = settle(config, &view, &result, &mut feed.reports[i]) {
             merge(i, view, pose, &mut model, &mut feed.reports[i])?;
             merged.push(i);

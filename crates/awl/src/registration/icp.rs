@@ -7,14 +7,23 @@
 //! - `inlier_rmse_m` = sqrt(mean over those correspondences of the squared point-to-plane residual);
 //! - `conditioning` = smallest / largest eigenvalue of the final 6x6 system, rotations scaled by the
 //!   cloud's RMS radius (near 0: the geometry does not constrain some direction, e.g. a flat wall).
+//!
+//! A direction of motion whose final eigenvalue is below `unobserved_ratio` times the largest is
+//! unobserved (a cylinder's spin about its axis, a plane's in-plane slide): the registration then
+//! runs again from the seed with every step's component along it removed, so the pose keeps the
+//! seed's value there instead of sliding on noise (solution remapping, Zhang, Kaess & Singh, ICRA
+//! 2016), and the result lists it (`unobserved`).
 
 use std::borrow::Cow;
 
-use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
-use super::solve::{Hint, StepParams, System, Target, TargetIndex, linearise, step_motion};
+use super::solve::{
+    Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, hold, linearise, step_as_twist,
+    step_motion,
+};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -58,6 +67,10 @@ pub struct IcpParams {
     /// At most this many source points per level (an even, deterministic stride over the
     /// down-sampled source); bounds the cost on dense views. Default 20 000.
     pub max_source_points: usize,
+    /// A direction whose eigenvalue of the 6x6 system is below this fraction of the largest
+    /// (rotations scaled by the cloud's RMS radius) is unobserved: no step moves the pose along it,
+    /// so it keeps the seed's value there. 0 turns this off. Default 0 here; the fuse sets its own.
+    pub unobserved_ratio: f64,
 }
 
 impl Default for IcpParams {
@@ -75,6 +88,7 @@ impl Default for IcpParams {
             convergence_translation_m: 1e-5,
             convergence_rotation_rad: 1e-5,
             max_source_points: 20_000,
+            unobserved_ratio: 0.0,
         }
     }
 }
@@ -108,6 +122,7 @@ impl IcpParams {
             ("max_normal_angle_rad", self.max_normal_angle_rad, at_least_zero, ">= 0"),
             ("convergence_translation_m", Some(self.convergence_translation_m), at_least_zero, ">= 0"),
             ("convergence_rotation_rad", Some(self.convergence_rotation_rad), at_least_zero, ">= 0"),
+            ("unobserved_ratio", Some(self.unobserved_ratio).filter(|v| !(*v < 1.0)), at_least_zero, "in [0, 1)"),
         ];
         for (name, value, ok, range) in checks {
             if let Some(v) = value.filter(|&v| !ok(v)) {
@@ -153,8 +168,89 @@ pub struct IcpResult {
     pub inliers: usize,
     /// See the module docs.
     pub conditioning: f64,
+    /// Smallest / largest eigenvalue over the observed directions (`conditioning` when none is
+    /// unobserved).
+    pub observed_conditioning: f64,
+    /// The unobserved directions (see the module docs), held at the seed, weakest first.
+    pub unobserved: Vec<Unobserved>,
     /// Per-level statistics, coarse first.
     pub levels: Vec<LevelStats>,
+}
+
+/// What kind of motion an unobserved direction is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MotionKind {
+    /// A rotation about `axis` through `point` (a sphere's or a cylinder's spin).
+    Rotation,
+    /// A translation along `axis` (a plane's or a cylinder's slide).
+    Translation,
+}
+
+/// A direction of motion the registered surface does not constrain, target frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Unobserved {
+    /// A rotation when the motion turns the source's points (`|ω|` times their RMS radius) at
+    /// least as much as it moves their centroid, else a translation.
+    pub kind: MotionKind,
+    /// Unit axis of the rotation, or direction of the translation.
+    pub axis: [f64; 3],
+    /// The point of the rotation's axis nearest the source's centroid, or for a translation the
+    /// centroid, metres.
+    pub point: [f64; 3],
+    /// Its eigenvalue of the final system over the largest (below `unobserved_ratio`).
+    pub eigen_ratio: f64,
+    /// The motion as a twist `(ω, v)`: a point `p` moves at `v + ω × p` (rad and m per unit; unit
+    /// length with `ω` scaled by the RMS radius and `v` taken at the centroid).
+    pub twist: [f64; 6],
+}
+
+impl Unobserved {
+    /// Names the twist `(ω, v)` of a source whose points have their centroid at `centroid` and an
+    /// RMS radius `radius_m` about it.
+    pub(crate) fn describe(twist: &Vector6<f64>, eigen_ratio: f64, centroid: &Vector3<f64>, radius_m: f64) -> Self {
+        let omega = Vector3::new(twist[0], twist[1], twist[2]);
+        let v = Vector3::new(twist[3], twist[4], twist[5]);
+        let at_centroid = v + omega.cross(centroid);
+        let array = |a: Vector3<f64>| [a.x, a.y, a.z];
+        let (kind, axis, point) = match omega.try_normalize(1e-12) {
+            Some(axis) if omega.norm() * radius_m >= at_centroid.norm() => {
+                // the axis: the points moving along ω; the one nearest the centroid
+                let on_axis = omega.cross(&v) / omega.norm_squared();
+                (MotionKind::Rotation, axis, on_axis + axis * axis.dot(&(centroid - on_axis)))
+            }
+            _ => (MotionKind::Translation, at_centroid.try_normalize(1e-12).unwrap_or_else(Vector3::x), *centroid),
+        };
+        Self { kind, axis: array(axis), point: array(point), eigen_ratio, twist: std::array::from_fn(|k| twist[k]) }
+    }
+
+    /// Whether `other` is the same motion (the same kind, axes within 5 degrees, rotation axes
+    /// within 5 cm of each other at this one's point: where a spin's axis is put varies by a few
+    /// centimetres from view to view).
+    #[must_use]
+    pub fn same_as(&self, other: &Unobserved) -> bool {
+        let (a, b) = (Vector3::from(self.axis), Vector3::from(other.axis));
+        if self.kind != other.kind || a.dot(&b).abs() < 5f64.to_radians().cos() {
+            return false;
+        }
+        let offset = Vector3::from(other.point) - Vector3::from(self.point);
+        self.kind == MotionKind::Translation || (offset - b * b.dot(&offset)).norm() < 0.05
+    }
+
+    /// The motions that keep this direction where it is, as a constraint `(α, β)` on twists
+    /// `(ω, v)`: `α·ω + β·v = 0`. A rotation keeps its angle about `axis` (`ω·axis = 0`); a
+    /// translation keeps the centroid's position along `axis`.
+    #[must_use]
+    pub fn constraint(&self) -> Vector6<f64> {
+        let axis = Vector3::from(self.axis);
+        match self.kind {
+            MotionKind::Rotation => Vector6::new(axis.x, axis.y, axis.z, 0.0, 0.0, 0.0),
+            MotionKind::Translation => {
+                let alpha = Vector3::from(self.point).cross(&axis);
+                Vector6::new(alpha.x, alpha.y, alpha.z, axis.x, axis.y, axis.z)
+            }
+        }
+    }
 }
 
 fn level_cloud(cloud: &PointCloud, voxel_m: f64) -> Result<Cow<'_, PointCloud>> {
@@ -219,17 +315,73 @@ fn centre_and_length(points: &[Point3<f64>]) -> (Vector3<f64>, f64) {
     (centre, rms.max(1e-3))
 }
 
-/// Solves the damped normal equations; `None` when the system is singular.
-fn solve_step(sys: &System) -> Option<Vector6<f64>> {
-    let damping = 1e-9 * sys.h.trace().max(1e-12);
-    let h = sys.h + nalgebra::Matrix6::identity() * damping;
-    h.cholesky().map(|c| c.solve(&(-sys.g)))
+/// Solves the damped normal equations, with no component along the directions `held` projects
+/// out (a [`complement`]); `None` when the system is singular.
+fn solve_step(sys: &System, held: Option<&Matrix6<f64>>) -> Option<Vector6<f64>> {
+    let (h, g) = match held {
+        Some(p) => hold(&sys.h, &sys.g, p),
+        None => (sys.h, sys.g),
+    };
+    let damping = 1e-9 * h.trace().max(1e-12);
+    let h = h + Matrix6::identity() * damping;
+    h.cholesky().map(|c| c.solve(&(-g)))
 }
 
-fn conditioning(sys: &System) -> f64 {
-    let eig = sys.h.symmetric_eigen().eigenvalues;
-    let (lo, hi) = eig.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| (lo.min(e), hi.max(e)));
-    if hi > 0.0 { (lo / hi).max(0.0) } else { 0.0 }
+/// A direction unobserved in other views is unobserved in this one too when its information here
+/// is below this many times `unobserved_ratio`.
+const EXPECTED_FACTOR: f64 = 10.0;
+
+/// `conditioning`, `observed_conditioning` and the unobserved directions (see [`IcpResult`]) of
+/// the final system `sys`, linearised about `centre` with rotations scaled by `1/length`, when
+/// `held` were held; without `held`, also each of `expected` whose information is below
+/// [`EXPECTED_FACTOR`] times `ratio` (see [`register_levels_expecting`]).
+fn spectrum(
+    sys: &System,
+    centre: &Vector3<f64>,
+    length: f64,
+    ratio: f64,
+    held: &[Unobserved],
+    expected: &[Unobserved],
+) -> (f64, f64, Vec<Unobserved>) {
+    let eig = SymmetricEigen::new(sys.h);
+    let hi = eig.eigenvalues.max();
+    if !(hi > 0.0) {
+        return (0.0, 0.0, held.to_vec());
+    }
+    let ratio_of = |l: f64| (l / hi).max(0.0);
+    let conditioning = ratio_of(eig.eigenvalues.min());
+    if !held.is_empty() {
+        // the smallest eigenvalue over the steps that meet the held constraints
+        let p = complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), centre, length)).collect::<Vec<_>>());
+        let mut kept: Vec<f64> = SymmetricEigen::new(p * sys.h * p).eigenvalues.iter().copied().collect();
+        kept.sort_by(f64::total_cmp);
+        return (conditioning, ratio_of(kept.get(held.len()).copied().unwrap_or(0.0)), held.to_vec());
+    }
+    let mut observed = f64::INFINITY;
+    let mut unobserved = Vec::new();
+    for (k, &l) in eig.eigenvalues.iter().enumerate() {
+        if l < ratio * hi {
+            let twist = step_as_twist(&eig.eigenvectors.column(k).into_owned(), centre, length);
+            unobserved.push(Unobserved::describe(&twist, ratio_of(l), centre, length));
+        } else {
+            observed = observed.min(l);
+        }
+    }
+    // a direction `expected` (unobserved in other views) that is weak here too: this view adds
+    // too little to tell it apart from their noise
+    for e in expected {
+        let twist = Vector6::from(e.twist);
+        let omega = Vector3::new(twist[0], twist[1], twist[2]);
+        let v = Vector3::new(twist[3], twist[4], twist[5]) + omega.cross(centre);
+        let step = Vector6::new(omega.x * length, omega.y * length, omega.z * length, v.x, v.y, v.z);
+        let Some(u) = step.try_normalize(1e-12) else { continue };
+        let weak = ratio_of(u.dot(&(sys.h * u)));
+        if weak < EXPECTED_FACTOR * ratio && !unobserved.iter().any(|o| o.same_as(e)) {
+            unobserved.push(Unobserved::describe(&twist, weak, centre, length));
+        }
+    }
+    unobserved.sort_by(|a, b| a.eigen_ratio.total_cmp(&b.eigen_ratio));
+    (conditioning, ratio_of(observed), unobserved)
 }
 
 /// One level's down-sampled source, target and target index.
@@ -246,7 +398,8 @@ fn run_level(
     k: usize,
     params: &IcpParams,
     mut t: Isometry3<f64>,
-) -> (Isometry3<f64>, LevelStats, System) {
+    held: &[Unobserved],
+) -> (Isometry3<f64>, LevelStats, Linearised) {
     let level = &params.levels[k];
     let (converged_m, converged_rad) = params.level_convergence(k);
     let LevelData { src, tgt, index } = data;
@@ -257,6 +410,7 @@ fn run_level(
     let mut buffers = move_cloud(src, &t);
     let length = centre_and_length(&buffers.0).1;
     let mut sys = None;
+    let mut about = Vector3::zeros();
     let mut hints = vec![Hint::NONE; src.len()];
     while iterations < level.max_iterations {
         move_cloud_into(src, &t, &mut buffers);
@@ -274,7 +428,11 @@ fn run_level(
         let s = linearise(moved, moved_normals.as_deref(), &target_l, &step, &mut hints);
         iterations += 1;
         sys = Some(s);
-        let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s)).flatten() else { break };
+        about = centre;
+        let held = (!held.is_empty()).then(|| {
+            complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), &centre, length)).collect::<Vec<_>>())
+        });
+        let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s, held.as_ref())).flatten() else { break };
         let (motion, moved_m, turned_rad) = step_motion(&delta, &centre, length);
         t = motion * t;
         if turned_rad < converged_rad && moved_m < converged_m {
@@ -292,7 +450,14 @@ fn run_level(
         fitness: s.inliers as f64 / n.max(1) as f64,
         inlier_rmse_m: if s.inliers > 0 { (s.residual_sq / s.inliers as f64).sqrt() } else { f64::INFINITY },
     };
-    (t, stats, s)
+    (t, stats, Linearised { system: s, centre: about, length })
+}
+
+/// A level's last linear system and what it was linearised about.
+struct Linearised {
+    system: System,
+    centre: Vector3<f64>,
+    length: f64,
 }
 
 /// Registers `source` to `target` (which must have normals), starting from `init`.
@@ -306,7 +471,7 @@ pub fn register(
     params: &IcpParams,
 ) -> Result<IcpResult> {
     check(params, source, target)?;
-    run(source, init, params, |level| level_cloud(target, params.levels[level].voxel_m))
+    run(source, init, params, |level| level_cloud(target, params.levels[level].voxel_m), &[])
 }
 
 /// [`register`] to a target given already down-sampled at each level (`target_levels[k]` at
@@ -320,6 +485,22 @@ pub fn register_levels(
     init: &Isometry3<f64>,
     params: &IcpParams,
 ) -> Result<IcpResult> {
+    register_levels_expecting(source, target_levels, init, params, &[])
+}
+
+/// [`register_levels`] where the directions `expected` were unobserved in other views of the same
+/// object (a symmetry): each is unobserved here too when its information is below 10 times
+/// `unobserved_ratio` (a view's own noise can make a symmetry look observed).
+///
+/// # Errors
+/// As [`register_levels`].
+pub fn register_levels_expecting(
+    source: &PointCloud,
+    target_levels: &[&PointCloud],
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+    expected: &[Unobserved],
+) -> Result<IcpResult> {
     if target_levels.len() != params.levels.len() {
         return Err(Error::invalid(
             "ICP target levels",
@@ -329,15 +510,35 @@ pub fn register_levels(
     for target in target_levels {
         check(params, source, target)?;
     }
-    run(source, init, params, |level| Ok(Cow::Borrowed(target_levels[level])))
+    run(source, init, params, |level| Ok(Cow::Borrowed(target_levels[level])), expected)
 }
 
-/// The coarse-to-fine loop; `target_at(k)` gives level `k`'s target cloud.
+/// The coarse-to-fine loop; `target_at(k)` gives level `k`'s target cloud. A result with
+/// unobserved directions (`params.unobserved_ratio`) is run again from `init` with them held.
 fn run<'a>(
     source: &PointCloud,
     init: &Isometry3<f64>,
     params: &IcpParams,
     target_at: impl Fn(usize) -> Result<Cow<'a, PointCloud>> + Sync,
+    expected: &[Unobserved],
+) -> Result<IcpResult> {
+    let free = run_holding(source, init, params, &target_at, &[], expected)?;
+    if params.unobserved_ratio > 0.0 && !free.unobserved.is_empty() {
+        let mut again = run_holding(source, init, params, &target_at, &free.unobserved, &[])?;
+        again.iterations += free.iterations;
+        return Ok(again);
+    }
+    Ok(free)
+}
+
+/// [`run`] with the directions `held` held at `init`.
+fn run_holding<'a>(
+    source: &PointCloud,
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+    target_at: &(impl Fn(usize) -> Result<Cow<'a, PointCloud>> + Sync),
+    held: &[Unobserved],
+    expected: &[Unobserved],
 ) -> Result<IcpResult> {
     let mut t = *init;
     let mut levels = Vec::new();
@@ -354,7 +555,7 @@ fn run<'a>(
     for k in 0..params.levels.len() {
         let Some(data) = next.take() else { break };
         let ((moved_to, stats, s), built) = rayon::join(
-            || run_level(&data, k, params, t),
+            || run_level(&data, k, params, t, held),
             || (k + 1 < params.levels.len()).then(|| build(k + 1)).transpose(),
         );
         next = built?;
@@ -362,7 +563,10 @@ fn run<'a>(
         levels.push(stats);
         last = Some(s);
     }
-    let s = last.unwrap_or_else(System::zero);
+    let last = last.unwrap_or(Linearised { system: System::zero(), centre: Vector3::zeros(), length: 1.0 });
+    let s = last.system;
+    let (conditioning, observed_conditioning, unobserved) =
+        spectrum(&s, &last.centre, last.length, params.unobserved_ratio, held, expected);
     let fin = levels.last().copied().ok_or_else(|| Error::invalid("ICP parameters", "no levels"))?;
     Ok(IcpResult {
         target_from_source: t,
@@ -371,7 +575,9 @@ fn run<'a>(
         fitness: fin.fitness,
         inlier_rmse_m: fin.inlier_rmse_m,
         inliers: s.inliers,
-        conditioning: conditioning(&s),
+        conditioning,
+        observed_conditioning,
+        unobserved,
         levels,
     })
 }

@@ -16,11 +16,11 @@
 
 use std::borrow::Cow;
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
-use super::solve::{Hint, StepParams, System, Target, TargetIndex, linearise, step_motion};
+use super::solve::{Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -49,7 +49,9 @@ struct ViewLevel<'a> {
 }
 
 /// Refines `poses` (`T_world_camera` of each cloud, camera-frame clouds with normals) jointly;
-/// `poses[fixed]` does not move. `params` as for pairwise ICP: its levels (each with a voxel size),
+/// `poses[fixed]` does not move, and view `i` moves only by twists `(ω, v)` (world frame: a point
+/// `p` moves at `v + ω × p`) that meet its constraints `held[i]` (`(α, β)`: `α·ω + β·v = 0`, as
+/// [`super::Unobserved::constraint`] gives; an empty or short `held`: none). `params` as for pairwise ICP: its levels (each with a voxel size),
 /// kernel, gates, convergence thresholds (the largest step over the views) and source points per
 /// view and level.
 ///
@@ -60,6 +62,7 @@ pub fn refine_jointly(
     clouds: &[&PointCloud],
     poses: &mut [Isometry3<f64>],
     fixed: usize,
+    held: &[Vec<Vector6<f64>>],
     params: &IcpParams,
 ) -> Result<Vec<JointLevelStats>> {
     if clouds.len() != poses.len() || fixed >= clouds.len() {
@@ -81,7 +84,7 @@ pub fn refine_jointly(
             .par_iter()
             .map(|c| view_level(c, level.voxel_m, params.max_source_points))
             .collect::<Result<Vec<_>>>()?;
-        stats.push(run_level(&views, poses, fixed, level, params));
+        stats.push(run_level(&views, poses, fixed, held, level, params));
     }
     Ok(stats)
 }
@@ -100,6 +103,7 @@ fn run_level(
     views: &[ViewLevel],
     poses: &mut [Isometry3<f64>],
     fixed: usize,
+    held: &[Vec<Vector6<f64>>],
     level: &IcpLevel,
     params: &IcpParams,
 ) -> JointLevelStats {
@@ -162,6 +166,18 @@ fn run_level(
             h.column_mut(k).fill(0.0);
             h[(k, k)] = 1.0;
             g[k] = 0.0;
+        }
+        // The held directions: each view's unknowns projected onto the steps that keep them.
+        if held.iter().any(|t| !t.is_empty()) {
+            let mut p = DMatrix::<f64>::identity(dim, dim);
+            for (v, twists) in held.iter().enumerate().filter(|(v, t)| *v < n && !t.is_empty()) {
+                let steps: Vec<Vector6<f64>> =
+                    twists.iter().map(|c| constraint_on_steps(c, &centre, length)).collect();
+                p.fixed_view_mut::<6, 6>(6 * v, 6 * v).copy_from(&complement(&steps));
+            }
+            let scale = (h.trace() / dim as f64).max(1e-12);
+            h = &p * &h * &p + (DMatrix::<f64>::identity(dim, dim) - &p) * scale;
+            g = &p * &g;
         }
         let damping = 1e-9 * (h.trace() / dim as f64).max(1e-12);
         for k in 0..dim {
@@ -289,7 +305,7 @@ mod tests {
             max_source_points: 5000,
             ..IcpParams::default()
         };
-        let stats = refine_jointly(&refs, &mut poses, 0, &params).expect("refine");
+        let stats = refine_jointly(&refs, &mut poses, 0, &[], &params).expect("refine");
         assert!(stats[0].converged, "{stats:?}");
         assert_eq!(poses[0], truth[0]);
         for (k, (p, t)) in poses.iter().zip(&truth).enumerate() {

@@ -98,6 +98,49 @@ pub(crate) fn step_motion(delta: &Vector6<f64>, centre: &Vector3<f64>, length: f
     (about_centre, v.norm(), omega.norm())
 }
 
+/// A constraint on twists `(ω, v)` (a point `p` moves at `v + ω × p`), `(α, β)`: the twists with
+/// `α·ω + β·v = 0`, as a constraint on the steps of a system linearised about `centre` with
+/// rotations scaled by `1/length` (`(ω length, v + ω × centre)`).
+pub(crate) fn constraint_on_steps(constraint: &Vector6<f64>, centre: &Vector3<f64>, length: f64) -> Vector6<f64> {
+    let alpha = Vector3::new(constraint[0], constraint[1], constraint[2]);
+    let beta = Vector3::new(constraint[3], constraint[4], constraint[5]);
+    let a = (alpha - centre.cross(&beta)) / length;
+    Vector6::new(a.x, a.y, a.z, beta.x, beta.y, beta.z)
+}
+
+/// A step of a system linearised about `centre` with rotations scaled by `1/length` as a twist
+/// `(ω, v)`.
+pub(crate) fn step_as_twist(step: &Vector6<f64>, centre: &Vector3<f64>, length: f64) -> Vector6<f64> {
+    let omega = Vector3::new(step[0], step[1], step[2]) / length;
+    let v = Vector3::new(step[3], step[4], step[5]) - omega.cross(centre);
+    Vector6::new(omega.x, omega.y, omega.z, v.x, v.y, v.z)
+}
+
+/// The orthogonal projection onto the steps `δ` with `c·δ = 0` for each of `constraints`; a
+/// constraint within about 6 degrees of the span of those before it adds nothing (two views' axes of
+/// one spin differ by that much).
+pub(crate) fn complement(constraints: &[Vector6<f64>]) -> Matrix6<f64> {
+    let mut basis: Vec<Vector6<f64>> = Vec::new();
+    for c in constraints {
+        let Some(mut u) = c.try_normalize(1e-12) else { continue };
+        for b in &basis {
+            u -= b * b.dot(&u);
+        }
+        if u.norm() > 0.1 {
+            basis.push(u.normalize());
+        }
+    }
+    basis.iter().fold(Matrix6::identity(), |p, b| p - b * b.transpose())
+}
+
+/// The normal equations `(h, g)` restricted to the steps `p` (a [`complement`]) keeps: the
+/// constrained directions decouple with unit stiffness (scaled to `h`) and no gradient, so the
+/// solved step meets the constraints.
+pub(crate) fn hold(h: &Matrix6<f64>, g: &Vector6<f64>, p: &Matrix6<f64>) -> (Matrix6<f64>, Vector6<f64>) {
+    let scale = (h.trace() / 6.0).max(1e-12);
+    (p * h * p + (Matrix6::identity() - p) * scale, p * g)
+}
+
 /// What the last search of one source point found: its correspondence, or for a miss how far the
 /// nearest target point was known to be and where the source point was then. The pose moves
 /// little between iterations, so a point that has not moved past a miss's clearance is a miss

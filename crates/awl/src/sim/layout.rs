@@ -125,11 +125,12 @@ fn wall(
     (mesh, yaw_at(at, behind), Wall { dir, distance, half_width })
 }
 
-/// Builds a scan's world for `wp`, random per `seed`.
+/// Builds a scan's world for `wp`, random per `seed`; `bare`: no clutter and no wall (the same
+/// workpiece placement, wall side and views as without).
 ///
 /// # Errors
 /// [`crate::Error::Invalid`] when the ray-casting mesh cannot be built.
-pub(crate) fn scan_world(wp: &Workpiece, seed: u64) -> Result<(World, ScanLayout)> {
+pub(crate) fn scan_world(wp: &Workpiece, seed: u64, bare: bool) -> Result<(World, ScanLayout)> {
     let mut rng = rng(seed, Stream::Scene, 0, 0);
     let (tx, ty) = (uniform(&mut rng, -0.2, 0.2), uniform(&mut rng, -0.2, 0.2));
     let yaw = uniform(&mut rng, 0.0, std::f64::consts::TAU);
@@ -140,9 +141,12 @@ pub(crate) fn scan_world(wp: &Workpiece, seed: u64) -> Result<(World, ScanLayout
     let mut builder = WorldBuilder::default();
     builder.add(&wp.cad, &world_from_object, WORKPIECE);
     builder.floor((0.0, 0.0, 0.0), FLOOR_HALF_M, FLOOR);
-    clutter(wp, &mut rng, &mut builder, &world_from_object);
+    let mut crowd = WorldBuilder::default();
+    clutter(wp, &mut rng, if bare { &mut crowd } else { &mut builder }, &world_from_object);
     let (wall_mesh, world_from_wall, wall) = wall(wp, &mut rng, &world_from_object, &centre);
-    builder.add(&wall_mesh, &world_from_wall, WALL);
+    if !bare {
+        builder.add(&wall_mesh, &world_from_wall, WALL);
+    }
     let world = builder.build(tag_print(wp, &world_from_object), seed)?;
     Ok((world, ScanLayout { world_from_object, centre, wall }))
 }

@@ -140,17 +140,21 @@ pub struct SimParams {
     /// device, so a scan and the shots taken later with the same camera share them (give the scan's
     /// seed). `None`: `seed`.
     pub camera_seed: Option<u64>,
+    /// The workpiece alone on the floor: no clutter boxes and no wall (a scan only). A symmetric
+    /// workpiece then leaves a motion that no view's surface constrains (the cylinder's spin
+    /// about its axis).
+    pub bare: bool,
 }
 
 impl SimParams {
     /// A realistic 12-view scan of `scene` with seed 1.
     pub fn scan(scene: SceneKind) -> Self {
-        Self { scene, views: 12, seed: 1, noise: NoiseLevel::Realistic, shot: None, camera_seed: None }
+        Self { scene, views: 12, seed: 1, noise: NoiseLevel::Realistic, shot: None, camera_seed: None, bare: false }
     }
 
     /// A realistic 2-view shot of `scene` in `pose` with seed 1.
     pub fn shot(scene: SceneKind, pose: ShotPose) -> Self {
-        Self { scene, views: 2, seed: 1, noise: NoiseLevel::Realistic, shot: Some(pose), camera_seed: None }
+        Self { scene, views: 2, seed: 1, noise: NoiseLevel::Realistic, shot: Some(pose), camera_seed: None, bare: false }
     }
 
     /// The seed of the camera (see `camera_seed`).

@@ -50,7 +50,7 @@ fn observe_all(
 /// Plans a scan: the seed's scene, then rig plans until enough views see the tag well (4, or a
 /// third of the views when fewer than 12); the best of 40 attempts otherwise.
 pub(crate) fn scan_plan(wp: &Workpiece, params: &SimParams, camera: &DepthCamera) -> Result<Plan> {
-    let (world, layout) = scan_world(wp, params.seed)?;
+    let (world, layout) = scan_world(wp, params.seed, params.bare)?;
     let need = params.views.div_ceil(3).min(4);
     let mut best: Option<(usize, Vec<RigView>, Vec<TagObservation>)> = None;
     for attempt in 0..40 {
@@ -193,6 +193,9 @@ fn truth_extra(
     extra.insert("scene".into(), json!(params.scene.name()));
     extra.insert("seed".into(), json!(params.seed));
     extra.insert("noise".into(), json!(params.noise.name()));
+    if params.bare {
+        extra.insert("bare".into(), json!(true));
+    }
     extra.insert("T_world_tag_apriltag".into(), json!(rows_from_isometry(&(world_from_tag * flip))));
     extra.insert(
         "tag_frames".into(),
