@@ -166,6 +166,9 @@ struct Problem<'a> {
     prior_sqrt: Matrix6<f64>,
     stop_sqrt: Option<Vector6<f64>>,
     view_weight: Vector6<f64>,
+    /// Per view with unobserved directions: the square root of its residual's information with
+    /// them left out (`None`: `view_weight`).
+    view_sqrt: Vec<Option<Matrix6<f64>>>,
 }
 
 impl Problem<'_> {
@@ -182,13 +185,18 @@ impl Problem<'_> {
 
     /// The flange-frame residual of view `i` (unweighted).
     fn view_residual(&self, p: &DVector<f64>, i: usize) -> Vector6<f64> {
+        self.view_residual_at(p, i, &self.views[i].model_from_camera)
+    }
+
+    /// ... had it been registered at `model_from_camera`.
+    fn view_residual_at(&self, p: &DVector<f64>, i: usize, model_from_camera: &Isometry3<f64>) -> Vector6<f64> {
         let v = &self.views[i];
         let d = match self.layout.stops[self.stop_of[i]] {
             Some(at) => perturbation(&p.as_slice()[at..at + 6]),
             None => Isometry3::identity(),
         };
         let model_from_base = self.g(p) * v.world_from_base * d;
-        log(&(v.base_from_ee.inverse() * model_from_base.inverse() * v.model_from_camera * self.x(p).inverse()))
+        log(&(v.base_from_ee.inverse() * model_from_base.inverse() * model_from_camera * self.x(p).inverse()))
     }
 
     fn view_rows(&self) -> usize {
@@ -200,7 +208,12 @@ impl Problem<'_> {
         let stop_rows = if self.stop_sqrt.is_some() { 6 * self.layout.stops.len() } else { 0 };
         let mut r = DVector::zeros(self.view_rows() + 6 + stop_rows);
         for i in 0..self.views.len() {
-            r.fixed_rows_mut::<6>(6 * i).copy_from(&self.view_residual(p, i).component_mul(&self.view_weight));
+            let d = self.view_residual(p, i);
+            let weighted = match &self.view_sqrt[i] {
+                Some(sqrt) => sqrt * d,
+                None => d.component_mul(&self.view_weight),
+            };
+            r.fixed_rows_mut::<6>(6 * i).copy_from(&weighted);
         }
         let px = Vector6::from_column_slice(&p.as_slice()[0..6]);
         r.fixed_rows_mut::<6>(self.view_rows()).copy_from(&(self.prior_sqrt * px));
@@ -296,6 +309,23 @@ fn weakest(information: &Matrix3<f64>) -> (Vector3<f64>, f64) {
 /// [`Error::Invalid`] for no view, a non-finite pose, a noise or prior that is not positive, or a
 /// system that cannot be solved.
 pub fn refine_chain(views: &[ChainView], prior: &ChainPrior, params: &ChainParams) -> Result<ChainEstimate> {
+    refine_chain_observed(views, &[], prior, params)
+}
+
+/// [`refine_chain`] where view `i`'s registration left the motions `unobserved[i]` unobserved
+/// (twists `(ω, v)` of its `T_model_camera` in the model frame: `exp(ξ) T_model_camera`; a point
+/// `p` moves at `v + ω × p`): its residual carries no information along them (their variance is
+/// taken as infinite), so the hand-eye is refined from the observed directions only. A short
+/// `unobserved` leaves the rest of the views as they are.
+///
+/// # Errors
+/// As [`refine_chain`].
+pub fn refine_chain_observed(
+    views: &[ChainView],
+    unobserved: &[Vec<Vector6<f64>>],
+    prior: &ChainPrior,
+    params: &ChainParams,
+) -> Result<ChainEstimate> {
     validate(views, prior, params)?;
     let mut stop_ids: Vec<usize> = views.iter().map(|v| v.stop).collect();
     stop_ids.sort_unstable();
@@ -307,7 +337,7 @@ pub fn refine_chain(views: &[ChainView], prior: &ChainPrior, params: &ChainParam
     let prior_sqrt = information.cholesky().map(|c| c.l().transpose()).unwrap_or_else(Matrix6::zeros);
     let n = &params.noise;
     let (sr, st) = ((n.arm_rad.powi(2) + n.camera_rad.powi(2)).sqrt(), (n.arm_m.powi(2) + n.camera_m.powi(2)).sqrt());
-    let problem = Problem {
+    let mut problem = Problem {
         views,
         stop_of,
         x0: prior.ee_from_camera,
@@ -319,7 +349,15 @@ pub fn refine_chain(views: &[ChainView], prior: &ChainPrior, params: &ChainParam
             _ => None,
         },
         view_weight: Vector6::new(1.0 / sr, 1.0 / sr, 1.0 / sr, 1.0 / st, 1.0 / st, 1.0 / st),
+        view_sqrt: vec![None; views.len()],
     };
+    let mut left_out = 0;
+    for (i, twists) in unobserved.iter().enumerate().take(views.len()) {
+        if let Some(sqrt) = observed_sqrt(&problem, i, twists) {
+            problem.view_sqrt[i] = Some(sqrt);
+            left_out += twists.len();
+        }
+    }
     let mut p = DVector::zeros(problem.layout.len);
     let mut cost = problem.residuals(&p).norm_squared();
     let mut lambda = 1e-3;
@@ -364,7 +402,7 @@ pub fn refine_chain(views: &[ChainView], prior: &ChainPrior, params: &ChainParam
     let rows = problem.view_rows();
     let r = problem.residuals(&p);
     let chi2 = r.rows(0, rows).norm_squared();
-    let dof = rows.saturating_sub(problem.layout.len - 6).max(1);
+    let dof = rows.saturating_sub(problem.layout.len - 6 + left_out).max(1);
     let residual_scale = (chi2 / dof as f64).sqrt();
     let scale = residual_scale.max(1.0).powi(2);
     let (mut sum_t, mut sum_r) = (0.0, 0.0);
@@ -398,6 +436,36 @@ pub fn refine_chain(views: &[ChainView], prior: &ChainPrior, params: &ChainParam
         rms_rad: (sum_r / views.len() as f64).sqrt(),
         iterations,
     })
+}
+
+/// The square root of view `i`'s residual information with the directions the registered pose's
+/// `twists` move it in left out: `W - W D (Dᵀ W D)⁻¹ Dᵀ W` (`W` the view's weight², `D` the
+/// residual's response to each twist, by central differences at the prior); `None` for no twist.
+fn observed_sqrt(problem: &Problem<'_>, i: usize, twists: &[Vector6<f64>]) -> Option<Matrix6<f64>> {
+    const STEP: f64 = 1e-6;
+    if twists.is_empty() {
+        return None;
+    }
+    let p = DVector::zeros(problem.layout.len);
+    let m = problem.views[i].model_from_camera;
+    let columns: Vec<Vector6<f64>> = (twists.iter())
+        .map(|t| {
+            let exp = |h: f64| {
+                let d = t * h;
+                isometry_from_translation_rotvec(Vector3::new(d[3], d[4], d[5]), Vector3::new(d[0], d[1], d[2]))
+            };
+            (problem.view_residual_at(&p, i, &(exp(STEP) * m)) - problem.view_residual_at(&p, i, &(exp(-STEP) * m)))
+                / (2.0 * STEP)
+        })
+        .collect();
+    let d = nalgebra::OMatrix::<f64, nalgebra::U6, nalgebra::Dyn>::from_columns(&columns);
+    let w = Matrix6::from_diagonal(&problem.view_weight.component_mul(&problem.view_weight));
+    let wd = w * &d;
+    let inner = (d.transpose() * &wd).try_inverse()?;
+    let information = w - &wd * inner * wd.transpose();
+    let e = SymmetricEigen::new((information + information.transpose()) * 0.5);
+    let root = Matrix6::from_diagonal(&e.eigenvalues.map(|l| l.max(0.0).sqrt()));
+    Some(root * e.eigenvectors.transpose())
 }
 
 /// The Schur complement of the first 6 unknowns in an information matrix (the rest marginalised;

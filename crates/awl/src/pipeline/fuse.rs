@@ -160,7 +160,10 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     }
     let hand_eye = match &config.hand_eye {
         Some(c) => timed(&mut stages, "hand-eye", 0, || {
-            let report = refine_hand_eye(scan, &registered.poses, c)?;
+            let unobserved: Vec<Vec<nalgebra::Vector6<f64>>> = (registered.reports.iter())
+                .map(|r| r.unobserved.iter().map(|u| nalgebra::Vector6::from(u.twist)).collect())
+                .collect();
+            let report = refine_hand_eye(scan, &registered.poses, &unobserved, c)?;
             let views = report.as_ref().map_or(0, |r| r.views_used.len());
             Ok((report, views))
         })?,
@@ -168,6 +171,9 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     };
     if let Some(r) = hand_eye.as_ref().filter(|r| !r.refused.is_empty()) {
         warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
+    }
+    if let Some(r) = hand_eye.as_ref().filter(|r| !r.warning.is_empty()) {
+        warnings.push(r.warning.clone());
     }
     progress("merge", 5, STAGES);
     let merge_start = Instant::now();

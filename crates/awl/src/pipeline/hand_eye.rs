@@ -7,11 +7,13 @@
 //! view poses and `T_world_tag`; the refined hand-eye and its covariance go into report.json and
 //! workpiece.json for `awl pierce`, which places the camera on the flange with it.
 
-use nalgebra::{Isometry3, Matrix6, Vector3};
+use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::handeye::chain::{ChainEstimate, ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
+use crate::handeye::chain::{
+    ChainEstimate, ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain_observed,
+};
 use crate::io::scan::{Scan, ViewPose};
 use crate::transform::{Rows, rows_from_isometry};
 
@@ -87,6 +89,17 @@ pub struct HandEyeReport {
     pub stops_used: Vec<usize>,
     /// The views used.
     pub views_used: Vec<usize>,
+    /// The directions of motion the views' registrations left unobserved (`views[i].unobserved` of
+    /// report.json), left out of the evidence; 0 when every view saw every direction.
+    #[serde(default)]
+    pub unobserved_left_out: usize,
+    /// The correction in sigma of the recorded hand-eye's prior: the Mahalanobis distance of the
+    /// refined from the recorded one over the 6 axes (0 when not refined).
+    #[serde(default)]
+    pub prior_sigmas: f64,
+    /// Set when that exceeds [`WRONG_PRIOR_SIGMAS`]: the recorded hand-eye is wrong (empty otherwise).
+    #[serde(default)]
+    pub warning: String,
     /// Within-stop view pairs that turn more than `min_turn_rad`.
     pub rotating_pairs: usize,
     /// The angle their rotation axes span (see `handeye::MotionDiversity`), degrees.
@@ -167,6 +180,9 @@ fn report_of(
             .map_or(none, |e| (direction(&e.weakest_translation.0), finite_or_none(e.weakest_translation.1 * 1e3))),
         stops_used: Vec::new(),
         views_used: Vec::new(),
+        unobserved_left_out: 0,
+        prior_sigmas: 0.0,
+        warning: String::new(),
         rotating_pairs: 0,
         axis_angle_deg: 0.0,
         residual_scale: estimate.map_or(0.0, |e| e.residual_scale),
@@ -200,13 +216,16 @@ fn within_stop_diversity(views: &[ChainView], min_turn_rad: f64) -> (usize, f64)
 }
 
 /// Refines the scan's recorded hand-eye from the registered `poses` (`T_world_camera` per view,
-/// `None`: left out). `None` when the scan records no hand-eye (its views give `T_world_camera`).
+/// `None`: left out), each view's `unobserved` motions (twists of its pose in the world frame,
+/// see `registration::Unobserved`; a short list: none) left out of its evidence. `None` when the
+/// scan records no hand-eye (its views give `T_world_camera`).
 ///
 /// # Errors
 /// [`Error::Invalid`] for a setting that is not a positive number.
 pub fn refine_hand_eye(
     scan: &Scan,
     poses: &[Option<Isometry3<f64>>],
+    unobserved: &[Vec<Vector6<f64>>],
     config: &HandEyeConfig,
 ) -> Result<Option<HandEyeReport>> {
     let Some(recorded) = scan.ee_from_camera else { return Ok(None) };
@@ -256,17 +275,45 @@ pub fn refine_hand_eye(
     let estimate = if refused.is_empty() {
         let stops_prior = config.stop_sigma.map_or(StopPrior::Free, StopPrior::Sigma);
         let params = ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30 };
-        Some(refine_chain(&chain, &prior, &params)?)
+        let left_out: Vec<Vec<Vector6<f64>>> =
+            views.iter().map(|(i, _)| unobserved.get(*i).cloned().unwrap_or_default()).collect();
+        Some(refine_chain_observed(&chain, &left_out, &prior, &params)?)
     } else {
         None
     };
     let mut report = report_of(&recorded, estimate.as_ref(), &prior, refused);
     report.stops_used = stops_used;
     report.views_used = views.iter().map(|(i, _)| *i).collect();
+    report.unobserved_left_out = views.iter().map(|(i, _)| unobserved.get(*i).map_or(0, Vec::len)).sum();
     report.rotating_pairs = rotating;
     report.axis_angle_deg = axis_angle.to_degrees();
+    if let Some(e) = &estimate {
+        // the correction measured against the recorded hand-eye's stated uncertainty
+        let d = recorded.inverse() * e.ee_from_camera;
+        let w = d.rotation.scaled_axis();
+        let delta = nalgebra::Vector6::new(w.x, w.y, w.z, d.translation.x, d.translation.y, d.translation.z);
+        let information = prior.covariance.try_inverse().unwrap_or_else(Matrix6::zeros);
+        report.prior_sigmas = delta.dot(&(information * delta)).max(0.0).sqrt();
+        if report.prior_sigmas > WRONG_PRIOR_SIGMAS {
+            report.warning = format!(
+                "the recorded hand-eye (scan.json T_ee_camera) is {:.1} mm / {:.2} deg from what the scan's base stops \
+                 show, {:.1} sigma of its stated uncertainty (hand_eye.prior_sigma_m {} mm, prior_sigma_rad {:.2} deg): \
+                 recalibrate (awl calibrate hand-eye); awl pierce uses the refined one",
+                report.correction_mm,
+                report.correction_deg,
+                report.prior_sigmas,
+                config.prior_sigma_m * 1e3,
+                config.prior_sigma_rad.to_degrees()
+            );
+        }
+    }
     Ok(Some(report))
 }
+
+/// A correction farther than this many sigma of the recorded hand-eye's prior (the Mahalanobis
+/// distance over its 6 axes) says the recorded one is wrong: 4.1, the 99 % point of a chi with 6
+/// degrees of freedom.
+pub const WRONG_PRIOR_SIGMAS: f64 = 4.1;
 
 #[cfg(test)]
 mod tests {
@@ -327,7 +374,7 @@ mod tests {
     fn stops_give_the_hand_eye_or_say_why_not() {
         let spread = |s: usize| [Vector3::x(), Vector3::y(), Vector3::new(1.0, 1.0, 1.0), Vector3::z()][s % 4];
         let (s, poses) = scan(4, spread, true);
-        let r = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
+        let r = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
         assert!(r.refused.is_empty(), "{}", r.refused);
         assert_eq!((r.stops_used.len(), r.views_used.len(), r.rotating_pairs), (4, 8, 4));
         // exact motions: the recorded 2.45 mm / 0.309 deg come down to 0.97 mm / 0.085 deg (measured;
@@ -344,24 +391,25 @@ mod tests {
         assert!(after.0 < 0.6 * before.0 && after.1 < 0.4 * before.1, "{before:?} -> {after:?}");
         // the same scan without base_stop keys: the identical T_world_base group the views
         let (s, poses) = scan(4, spread, false);
-        let untagged = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
+        let untagged =
+            refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
         assert_eq!(untagged.stops_used, vec![0, 2, 4, 6]);
         assert!((untagged.correction_mm - r.correction_mm).abs() < 1e-9);
         // one stop: refused, named
         let (s, poses) = scan(1, spread, true);
-        let one = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        let one = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
         assert!(one.refined.is_none() && one.refused.starts_with("fewer than two usable stops"), "{}", one.refused);
         // every stop turning about the same axis: refused, named
         let (s, poses) = scan(4, |_| Vector3::z(), true);
-        let parallel = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        let parallel = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
         assert!(parallel.refused.starts_with("parallel rotation axes"), "{}", parallel.refused);
         assert!(parallel.axis_angle_deg < 1e-6);
         // a view left out of the registration: its stop has one view, so it is not used
         let (s, mut poses) = scan(3, spread, true);
         poses[1] = None;
-        let partial = refine_hand_eye(&s, &poses, &HandEyeConfig::default()).expect("refine").expect("a report");
+        let partial = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
         assert_eq!(partial.stops_used, vec![1, 2]);
         let bad = HandEyeConfig { prior_sigma_m: 0.0, ..HandEyeConfig::default() };
-        assert!(refine_hand_eye(&s, &poses, &bad).expect_err("zero sigma").to_string().contains("prior_sigma_m"));
+        assert!(refine_hand_eye(&s, &poses, &[], &bad).expect_err("zero sigma").to_string().contains("prior_sigma_m"));
     }
 }

@@ -123,7 +123,13 @@ pub(super) fn settle(
     report.unobserved = result.unobserved.clone();
     if std::env::var_os("AWL_DEBUG_HOLD").is_some() {
         let d = result.target_from_source * view.seed.inverse();
-        eprintln!("HOLD view {} seq correction rot {:?} deg, trans {:?}; held {:?}", report.index, (d.rotation.scaled_axis() * 57.3).as_slice(), d.translation.vector.as_slice(), result.unobserved);
+        eprintln!(
+            "HOLD view {} seq correction rot {:?} deg, trans {:?}; held {:?}",
+            report.index,
+            (d.rotation.scaled_axis() * 57.3).as_slice(),
+            d.translation.vector.as_slice(),
+            result.unobserved
+        );
     }
     match judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)) {
         Ok(()) => {

@@ -352,7 +352,8 @@ fn spectrum(
     let conditioning = ratio_of(eig.eigenvalues.min());
     if !held.is_empty() {
         // the smallest eigenvalue over the steps that meet the held constraints
-        let p = complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), centre, length)).collect::<Vec<_>>());
+        let p =
+            complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), centre, length)).collect::<Vec<_>>());
         let mut kept: Vec<f64> = SymmetricEigen::new(p * sys.h * p).eigenvalues.iter().copied().collect();
         kept.sort_by(f64::total_cmp);
         return (conditioning, ratio_of(kept.get(held.len()).copied().unwrap_or(0.0)), held.to_vec());

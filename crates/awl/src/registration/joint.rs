@@ -20,7 +20,9 @@ use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
-use super::solve::{Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, linearise, step_motion};
+use super::solve::{
+    Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, linearise, step_motion,
+};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -171,8 +173,7 @@ fn run_level(
         if held.iter().any(|t| !t.is_empty()) {
             let mut p = DMatrix::<f64>::identity(dim, dim);
             for (v, twists) in held.iter().enumerate().filter(|(v, t)| *v < n && !t.is_empty()) {
-                let steps: Vec<Vector6<f64>> =
-                    twists.iter().map(|c| constraint_on_steps(c, &centre, length)).collect();
+                let steps: Vec<Vector6<f64>> = twists.iter().map(|c| constraint_on_steps(c, &centre, length)).collect();
                 p.fixed_view_mut::<6, 6>(6 * v, 6 * v).copy_from(&complement(&steps));
             }
             let scale = (h.trace() / dim as f64).max(1e-12);

@@ -8,7 +8,8 @@ pub mod kernel;
 mod solve;
 
 pub use icp::{
-    IcpLevel, IcpParams, IcpResult, LevelStats, MotionKind, Unobserved, register, register_levels, register_levels_expecting,
+    IcpLevel, IcpParams, IcpResult, LevelStats, MotionKind, Unobserved, register, register_levels,
+    register_levels_expecting,
 };
 pub use joint::{JointLevelStats, refine_jointly};
 pub use kernel::Kernel;

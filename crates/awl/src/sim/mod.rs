@@ -154,7 +154,15 @@ impl SimParams {
 
     /// A realistic 2-view shot of `scene` in `pose` with seed 1.
     pub fn shot(scene: SceneKind, pose: ShotPose) -> Self {
-        Self { scene, views: 2, seed: 1, noise: NoiseLevel::Realistic, shot: Some(pose), camera_seed: None, bare: false }
+        Self {
+            scene,
+            views: 2,
+            seed: 1,
+            noise: NoiseLevel::Realistic,
+            shot: Some(pose),
+            camera_seed: None,
+            bare: false,
+        }
     }
 
     /// The seed of the camera (see `camera_seed`).

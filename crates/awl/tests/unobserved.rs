@@ -1,0 +1,116 @@
+//! Issue 54's real-data failures, made on purpose in simulation: a symmetric workpiece seen from an
+//! arm (a cylinder alone on the floor, `SimParams::bare`: nothing constrains the views' spin about
+//! its axis), and a recorded hand-eye 1 deg / 5 mm off.
+//!
+//! Numbers measured at the commit that added them (seed 1): see each assertion.
+
+use awl::io::scan::read_scan;
+use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
+use awl::registration::MotionKind;
+use awl::sim::{SceneKind, SimParams, Simulation, simulate, write_simulation};
+use awl::transform::pose_difference;
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+fn fuse_with(sim: &Simulation, config: &FuseConfig) -> FuseOutput {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("scan");
+    write_simulation(&path, sim, false).expect("write");
+    let scan = read_scan(&path).expect("read");
+    fuse(&scan, config, &|_, _, _| {}).expect("fuse")
+}
+
+fn bare_cylinder() -> Simulation {
+    simulate(&SimParams { bare: true, ..SimParams::scan(SceneKind::Cylinder) }).expect("simulate")
+}
+
+/// `sim` with its recorded hand-eye replaced by the true one moved 1 deg and 5 mm.
+fn with_hand_eye_off(mut sim: Simulation) -> Simulation {
+    let truth = sim.truth.ee_from_camera.expect("true hand-eye");
+    let off = Isometry3::from_parts(
+        Translation3::from(Vector3::new(-0.3, 0.8, 0.52).normalize() * 0.005),
+        UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(0.6, -0.5, 0.62)),
+            1f64.to_radians(),
+        ),
+    );
+    sim.scan.ee_from_camera = Some(truth * off);
+    sim
+}
+
+/// The hand-eye error of the refined `T_ee_camera` (mm, deg) and the report's sigmas.
+fn refined_error(sim: &Simulation, out: &FuseOutput) -> ((f64, f64), f64) {
+    let he = out.report.hand_eye.as_ref().expect("hand-eye report");
+    let refined = awl::transform::isometry_from_rows(he.refined.as_ref().expect("refined")).expect("rigid");
+    let (t, r) = pose_difference(&refined, &sim.truth.ee_from_camera.expect("truth"));
+    ((t * 1e3, r.to_degrees()), he.prior_sigmas)
+}
+
+#[test]
+fn a_cylinder_alone_holds_its_spin_at_the_seed_and_reports_it() {
+    let sim = bare_cylinder();
+    let out = fuse_with(&sim, &FuseConfig::default());
+    let views = &out.report.views;
+    let anchor = views.iter().position(|v| v.status == ViewStatus::Anchor).expect("anchor");
+    // the model frame in the true world: the anchor view's recorded pose is exact there
+    let world_from_model = sim.truth.views[anchor].world_from_camera * out.poses[anchor].expect("anchor").inverse();
+    let axis_point = sim.truth.world_from_object * Point3::new(0.15, 0.15, 0.0);
+    let mut held = 0;
+    for (i, v) in views.iter().enumerate().filter(|(i, _)| *i != anchor) {
+        // every view is merged (without the hold: 1 of 11, below)
+        assert_eq!(v.status, ViewStatus::Accepted, "view {i}: {}", v.reason);
+        // one direction is unobserved: the spin about the cylinder's (vertical) axis
+        assert_eq!(v.unobserved.len(), 1, "view {i}: {:?}", v.unobserved);
+        let u = &v.unobserved[0];
+        assert_eq!(u.kind, MotionKind::Rotation, "view {i}");
+        assert!(u.axis[2].abs() > 0.999, "view {i}: axis {:?}", u.axis);
+        let on_axis = world_from_model * Point3::from(u.point);
+        let off = ((on_axis - axis_point).xy()).norm();
+        // measured 0.4-3.6 cm (where a partial view's spin axis falls)
+        assert!(off < 0.05, "view {i}: the axis passes {:.1} cm from the cylinder's", off * 100.0);
+        // held at the seed: the registered pose turned about the vertical as the seed did
+        // (measured: equal to 0.01 deg), while its other rotation errors are gone (< 0.15 deg)
+        let seed = v.seed.as_ref().map(|r| awl::transform::isometry_from_rows(r).expect("rigid")).expect("seed");
+        let pose = out.poses[i].expect("pose");
+        let truth = world_from_model.inverse() * sim.truth.views[i].world_from_camera;
+        let spin = |p: &Isometry3<f64>| (p * truth.inverse()).rotation.scaled_axis();
+        let (at_seed, registered) = (spin(&seed), spin(&pose));
+        assert!((registered.z - at_seed.z).abs().to_degrees() < 0.02, "view {i}: {at_seed:?} -> {registered:?}");
+        assert!(registered.xy().norm().to_degrees() < 0.15, "view {i}: tilt error {registered:?}");
+        held += 1;
+    }
+    assert_eq!(held, 11);
+    // the hand-eye left the spins out of its evidence
+    assert_eq!(out.report.hand_eye.as_ref().expect("hand-eye").unobserved_left_out, 11);
+    // without the hold (the rule before issue 54 item 6) the views slide and are rejected
+    let mut free = FuseConfig::default();
+    free.registration.icp.unobserved_ratio = 0.0;
+    let slid = fuse_with(&sim, &free);
+    let accepted = slid.report.views.iter().filter(|v| v.status == ViewStatus::Accepted).count();
+    assert!(accepted <= 3, "{accepted} views accepted without the hold (measured 0)");
+}
+
+#[test]
+fn a_hand_eye_1_deg_5_mm_off_is_detected_and_its_rotation_corrected() {
+    // the box: the sim's own recorded hand-eye (about 2.5 mm / 0.3 deg off) raises no warning ...
+    let sim = simulate(&SimParams::scan(SceneKind::Box)).expect("simulate");
+    let out = fuse_with(&sim, &FuseConfig::default());
+    let (_, sigmas) = refined_error(&sim, &out);
+    assert!(sigmas < 3.0, "{sigmas:.2} sigma (measured 1.48)");
+    assert!(out.report.hand_eye.as_ref().expect("hand-eye").warning.is_empty());
+    // ... one 1 deg / 5 mm off is flagged and its rotation brought within a third
+    let off = with_hand_eye_off(sim);
+    let out = fuse_with(&off, &FuseConfig::default());
+    let ((mm, deg), sigmas) = refined_error(&off, &out);
+    assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{sigmas:.2} sigma (measured 4.47)");
+    assert!(out.report.warnings.iter().any(|w| w.contains("recalibrate")), "{:?}", out.report.warnings);
+    // measured 0.164 deg; the translation only to 3.03 mm (not a third: see the closing note)
+    assert!(deg < 1.0 / 3.0, "rotation {deg:.3} deg");
+    assert!(mm < 4.0, "translation {mm:.2} mm");
+    // the same on the cylinder alone, from its observed directions only
+    let off = with_hand_eye_off(bare_cylinder());
+    let out = fuse_with(&off, &FuseConfig::default());
+    let ((mm, deg), sigmas) = refined_error(&off, &out);
+    assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{sigmas:.2} sigma");
+    // measured 0.197 deg, 3.53 mm
+    assert!(deg < 1.0 / 3.0 && mm < 4.5, "{mm:.2} mm, {deg:.3} deg");
+}
