@@ -4,26 +4,13 @@
 //! full disk, simulated by a file-size limit, leaves nothing). Each case asserts the error names the
 //! path and the inputs are byte-identical afterwards.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn awl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_awl")).args(args).output().expect("run awl")
-}
-
-fn text(out: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8 path")
-}
-
-fn ok(out: Output) -> Output {
-    assert!(out.status.success(), "{}", text(&out));
-    out
-}
+use common::{awl, ok, s, simulate_shot, text};
 
 /// Every file under `dir` with its bytes.
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
@@ -75,7 +62,7 @@ fn fixture() -> Fixture {
     let (scan, fuse, shot) = (dir.path().join("scan"), dir.path().join("fuse"), dir.path().join("shot"));
     ok(awl(&["simulate", "--views", "4", "--seed", "2", "-o", s(&scan)]));
     ok(awl(&["fuse", s(&scan), "-o", s(&fuse), "--quiet", "--threads", "2"]));
-    ok(awl(&["simulate", "--shot", "flat", "--views", "1", "--seed", "2", "-o", s(&shot)]));
+    simulate_shot(&shot, "box", "flat", 2, Some(1));
     Fixture { dir, scan, fuse, shot }
 }
 

@@ -4,32 +4,14 @@
 //! truth, the pose encodings, the URScript, and bad input (tag not visible, wrong tag id, a target
 //! off the model, a shot without color, overwriting an input), each a clear error with nothing written.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-use awl::io::mesh::{read_mesh, write_cloud};
-use awl::io::scan::read_scan;
-use awl::io::truth::read_truth;
-use awl::io::workpiece::write_workpiece;
 use awl::transform::{Rows, isometry_from_rows, rows_from_isometry};
-use awl::workpiece::{FloorPlane, Workpiece};
+use common::{awl, cad_workpiece, read_json, s, text};
 use nalgebra::{Point3, UnitQuaternion, Vector3};
-
-fn awl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_awl")).args(args).output().expect("run awl")
-}
-
-fn text(out: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
-}
-
-fn read_json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).expect("read")).expect("json")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8 path")
-}
 
 /// A simulated tilted box shot, the CAD-sampled model with its workpiece.json, and the true hand-eye.
 struct Setup {
@@ -44,37 +26,7 @@ struct Setup {
 }
 
 fn setup(tag_id: u32) -> Setup {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let shot = dir.path().join("shot");
-    let out = awl(&["simulate", "--scene", "box", "--shot", "tilt30", "--seed", "3", "-o", s(&shot)]);
-    assert!(out.status.success(), "{}", text(&out));
-    let truth = read_truth(&shot).expect("truth");
-    let scan = read_scan(&shot).expect("shot");
-    let cad = read_mesh(&shot.join(&truth.cad)).expect("cad");
-    let model = awl::normals::with_normals(
-        &cad.sample_surface(150_000, 1).expect("sample"),
-        &awl::normals::NormalParams::default(),
-        None,
-    )
-    .expect("normals");
-    write_cloud(&dir.path().join("model.ply"), &model).expect("model");
-    let object_from_tag = truth.world_from_object.inverse() * truth.world_from_tag.expect("T_world_tag");
-    let mut tag = scan.tag.clone().expect("tag");
-    tag.id = tag_id;
-    let wp = Workpiece {
-        model: "model.ply".into(),
-        world_from_tag: Some(object_from_tag),
-        tag,
-        views_checked: Vec::new(),
-        detections: Vec::new(),
-        refinement: None,
-        // the CAD's footprint is at z = 0 in its frame: the floor a fused model would record
-        floor: FloorPlane::new(Vector3::z(), 0.0),
-        hand_eye: None,
-        warnings: Vec::new(),
-    };
-    let workpiece = dir.path().join("workpiece.json");
-    write_workpiece(&workpiece, &wp).expect("workpiece");
+    let common::CadWorkpiece { dir, shot, workpiece, truth } = cad_workpiece("tilt30", 3, 150_000, Some(tag_id));
     let hand_eye = dir.path().join("hand_eye.json");
     let rows = rows_from_isometry(&truth.ee_from_camera.expect("true T_ee_camera"));
     std::fs::write(&hand_eye, serde_json::json!({ "T_ee_camera": rows }).to_string()).expect("hand-eye");
@@ -369,8 +321,7 @@ fn with_a_robot_the_plan_says_whether_the_arm_reaches_and_moves_in_joint_space()
     let dir = su.dir.path();
     let tcp = dir.join("tcp.json");
     let ee_from_tool = nalgebra::Isometry3::translation(0.0, 0.0, 0.15);
-    std::fs::write(&tcp, serde_json::json!({ "T_ee_tool": rows_from_isometry(&ee_from_tool) }).to_string())
-        .expect("tcp");
+    common::write_tcp(&tcp, 0.15);
     let target = format!("face-centre@{},{},{}", su.pick.x, su.pick.y, su.pick.z);
     let run = |robot: &str, name: &str| {
         let plan = dir.join(format!("{name}.json"));

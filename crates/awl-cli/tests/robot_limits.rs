@@ -5,32 +5,21 @@
 //! hand-eye's absurd poses and settings refused naming the pose or flag. Nothing is written on a
 //! refusal.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use awl::io::handeye::{parse_poses, poses_json};
-use awl::io::mesh::{read_cloud, read_mesh, write_cloud};
+use awl::io::mesh::read_cloud;
 use awl::io::plan::{PlanSources, plan_text};
 use awl::io::scan::read_scan;
-use awl::io::truth::read_truth;
-use awl::io::workpiece::{read_workpiece, write_workpiece};
+use awl::io::workpiece::read_workpiece;
 use awl::pierce::{PierceParams, ScriptSpeeds, Stroke, check_for_robot, plan, techman_packets, urscript};
-use awl::workpiece::{FloorPlane, SurfaceModel, TargetSpec, Workpiece};
+use awl::workpiece::{SurfaceModel, TargetSpec};
+use common::{awl, cad_workpiece, s, text};
 use nalgebra::Vector3;
 
-fn awl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_awl")).args(args).output().expect("run awl")
-}
-
-fn text(out: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf-8 path")
-}
-
-/// A simulated flat box shot and the CAD-sampled model with its workpiece.json (as tests/pierce.rs).
+/// A simulated flat box shot and the CAD-sampled model with its workpiece.json (`common`).
 struct Setup {
     dir: tempfile::TempDir,
     shot: PathBuf,
@@ -39,34 +28,7 @@ struct Setup {
 }
 
 fn setup() -> Setup {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let shot = dir.path().join("shot");
-    let out = awl(&["simulate", "--scene", "box", "--shot", "flat", "--seed", "3", "-o", s(&shot)]);
-    assert!(out.status.success(), "{}", text(&out));
-    let truth = read_truth(&shot).expect("truth");
-    let scan = read_scan(&shot).expect("shot");
-    let cad = read_mesh(&shot.join(&truth.cad)).expect("cad");
-    let model = awl::normals::with_normals(
-        &cad.sample_surface(60_000, 1).expect("sample"),
-        &awl::normals::NormalParams::default(),
-        None,
-    )
-    .expect("normals");
-    write_cloud(&dir.path().join("model.ply"), &model).expect("model");
-    let object_from_tag = truth.world_from_object.inverse() * truth.world_from_tag.expect("T_world_tag");
-    let wp = Workpiece {
-        model: "model.ply".into(),
-        world_from_tag: Some(object_from_tag),
-        tag: scan.tag.clone().expect("tag"),
-        views_checked: Vec::new(),
-        detections: Vec::new(),
-        refinement: None,
-        floor: FloorPlane::new(Vector3::z(), 0.0),
-        hand_eye: None,
-        warnings: Vec::new(),
-    };
-    let workpiece = dir.path().join("workpiece.json");
-    write_workpiece(&workpiece, &wp).expect("workpiece");
+    let common::CadWorkpiece { dir, shot, workpiece, truth } = cad_workpiece("flat", 3, 60_000, None);
     let p = truth.targets[0].p_object + truth.targets[0].n_object * 0.003;
     Setup { dir, shot, workpiece, target: format!("{},{},{}", p.x, p.y, p.z) }
 }

@@ -1,8 +1,9 @@
 //! `awl send` against loopback listeners written from the vendors' documents
 //! (`tests/py/ur_listener.py`, `tests/py/techman_listener.py`, run with `$AWL_PYTHON`; those tests
 //! are skipped with a message only when it is unset): the bytes received equal the plan's program,
-//! the listener verifies the Techman framing and checksums, a negative acknowledgement, a script
-//! error and a silent controller are clear errors; and without a network: nothing is sent for a
+//! the listener verifies the Techman framing and checksums, the listen node's entry message and a
+//! script taken with warnings pass, a negative acknowledgement, a script error and a silent
+//! controller are clear errors; and without a network: nothing is sent for a
 //! plan with an unreachable or no-go target, `--dry-run` prints exactly the bytes, a closed port
 //! and bad plans are clear errors.
 
@@ -136,6 +137,18 @@ fn techman_packets_are_checked_by_the_listener_and_its_negative_answers_are_erro
     assert_eq!(verdict["checksums_verified"], 3, "{verdict}");
     assert_eq!(verdict["ids"], json!(["awl0", "awl1", "awlexit"]));
     assert!(text(&out).contains("sent 3 listen-node packets"), "{}", text(&out));
+    // the listen node's message on entering it (id 0) before the first answer, and a script taken
+    // with a warning (`OK;1`, the manual's `OK;<lines>`): sent whole, both reported
+    let l = listener("techman_listener.py", "listen1_warn", dir.path()).expect("listener");
+    let out = send(&plan, "--techman", l.port, &[]);
+    let (verdict, bytes) = finish(l);
+    let t = text(&out);
+    println!("listen1_warn: {t}");
+    assert!(out.status.success(), "{t}");
+    assert_eq!(bytes, techman().as_bytes());
+    assert_eq!(verdict["checksums_verified"], 3, "{verdict}");
+    assert!(t.contains("said `Listen1` on entering it"), "{t}");
+    assert!(t.contains("took packet id awl0 with warnings on its script lines 1\n"), "{t}");
     // a negative acknowledgement of packet 2: an error naming it, and nothing sent after it
     let l = listener("techman_listener.py", "nack2", dir.path()).expect("listener");
     let out = send(&plan, "--techman", l.port, &[]);

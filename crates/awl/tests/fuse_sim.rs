@@ -227,6 +227,7 @@ fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
             hand_eye: Some(HandEyePrior::calibrated(hand_eye.ee_from_camera, "calibrate_rig")),
             ..PierceParams::default()
         },
+        robot: None,
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let rows: Vec<_> = (1..=n)

@@ -77,7 +77,13 @@ pub fn run(args: &SendArgs) -> anyhow::Result<()> {
         );
     } else {
         let r = techman::send_packets(host, port, bytes, timeout)?;
+        if let Some(m) = &r.listen_node {
+            println!("the listen node at {host}:{port} said `{m}` on entering it");
+        }
         println!("sent {} listen-node packets to {host}:{port}, each acknowledged OK", r.acknowledged.len());
+        for (id, lines) in &r.warnings {
+            println!("warning: the listen node took packet id {id} with warnings on its script lines {lines}");
+        }
     }
     Ok(())
 }

@@ -1,6 +1,9 @@
 //! `awl trial --scene box|shell --tilt 0|30 --trials 10`: the reference paper's piercing trials in
 //! simulation (calibrate, simulate + fuse, then shots in random placements, then pierce), printed as
-//! its Tables I-IV. See `awl::trial`.
+//! its Tables I-IV. See `awl::trial`. With `--robot NAME --tcp T_ee_tool.json` (the arguments of
+//! `awl pierce`), each trial's plan is checked for the arm at the rig's robot base: a reach column,
+//! per trial the margins and clearance or why not, and trial.json's `reach` per row. An unreachable
+//! target is reported, not an error.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -12,11 +15,14 @@ use awl::pipeline::FuseConfig;
 use awl::sim::rig_ee_from_camera;
 use awl::sim::{SceneKind, ShotPose, SimParams, simulate, write_simulation};
 use awl::transform::pose_difference;
-use awl::trial::{ShotSetup, TrialRow, TrialSummary, calibrate_rig, format_table, prepare_workpiece, run_shot};
+use awl::trial::{
+    ShotSetup, TrialRobot, TrialRow, TrialSummary, calibrate_rig, format_table, prepare_workpiece, run_shot,
+};
 use serde_json::json;
 
 use super::common::{prepare_output, set_threads, stage_bar, write_json};
 use super::demo::DemoScene;
+use super::pierce::{RobotArgs, robot_setup};
 
 /// Arguments of `awl trial`.
 #[derive(clap::Args)]
@@ -57,6 +63,8 @@ pub struct TrialArgs {
     /// Only the table.
     #[arg(long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub robot: RobotArgs,
 }
 
 fn row_json(r: &TrialRow) -> serde_json::Value {
@@ -79,7 +87,30 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "located_position_covariance_m2": rows3(&r.located_position_covariance),
         "normal_base": [r.normal_base.x, r.normal_base.y, r.normal_base.z],
         "face_centre": r.face_centre,
+        "base_distance_m": r.base_distance_m(),
+        "base_horizontal_m": r.base_horizontal_m(),
+        "reach": r.reach.as_ref().map(awl::io::plan::reach_json),
     })
+}
+
+/// Refuses a `--tcp` / `--robot-file` that the run would remove or replace (inside `scan/`,
+/// `fuse/` or `shots/` of the output folder, or its table.txt / trial.json).
+fn check_robot_inputs(args: &TrialArgs) -> anyhow::Result<()> {
+    let out = awl::io::outputs::resolve_path(&args.output);
+    for (path, what) in [(&args.robot.tcp, "--tcp"), (&args.robot.robot_file, "--robot-file")] {
+        let Some(p) = path else { continue };
+        let p = awl::io::outputs::resolve_path(p);
+        let replaced = ["scan", "fuse", "shots"].iter().any(|sub| p.starts_with(out.join(sub)))
+            || ["table.txt", "trial.json"].iter().any(|f| p == out.join(f));
+        anyhow::ensure!(
+            !replaced,
+            "{what} `{}`: refusing to use an input the trial replaces (it lies in the output folder's scan/, fuse/ or \
+             shots/, or is its table.txt or trial.json); move it out of `{}`",
+            p.display(),
+            args.output.display()
+        );
+    }
+    Ok(())
 }
 
 fn finite(v: f64) -> serde_json::Value {
@@ -96,6 +127,9 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     anyhow::ensure!(args.tilt == 0 || args.tilt == 30, "--tilt must be 0 or 30, got {}", args.tilt);
     anyhow::ensure!((1..=1000).contains(&args.trials), "--trials must be 1 to 1000, got {}", args.trials);
+    // the arm and the tool are read and checked before the scan is simulated
+    let robot = robot_setup(&args.robot)?.map(|(arm, ee_from_tool, params)| TrialRobot { arm, ee_from_tool, params });
+    check_robot_inputs(args)?;
     prepare_output(&args.output, args.force, &["scan", "fuse", "shots"])?;
     let say = |line: String| {
         if !args.quiet {
@@ -174,6 +208,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
             hand_eye: Some(prior),
             ..PierceParams::default()
         },
+        robot,
     };
     let bar = stage_bar(args.quiet);
     bar.set_length(args.trials as u64);
@@ -185,8 +220,15 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         bar.set_position(k as u64);
     }
     bar.finish_and_clear();
+    let arm = setup.robot.as_ref().map_or(String::new(), |r| {
+        format!(
+            ", reach for {} with the TCP {:.0} mm from the flange",
+            r.arm.name,
+            r.ee_from_tool.translation.vector.norm() * 1e3
+        )
+    });
     let title = format!(
-        "{} {} (tilt {} deg), target `{}`, {} trials, seed {} [3/3 done in {:.1} s]",
+        "{} {} (tilt {} deg), target `{}`, {} trials, seed {}{arm} [3/3 done in {:.1} s]",
         scene.name(),
         pose.name(),
         args.tilt,
@@ -220,7 +262,13 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
                          "max_axis_error_at_point_deg": s.max_axis_error_at_point_rad.to_degrees(),
                          "mean_tag_only_m": s.mean_tag_only_m, "refined": s.refined,
                          "within_bound": s.within_bound, "axis_within_bound": s.axis_within_bound,
-                         "median_bound_m": s.median_bound_m, "median_m": s.median_m },
+                         "median_bound_m": s.median_bound_m, "median_m": s.median_m,
+                         "reach_checked": s.reach_checked, "reachable": s.reachable },
+            "robot": setup.robot.as_ref().map(|r| json!({
+                "arm": r.arm.name,
+                "T_ee_tool": awl::transform::rows_from_isometry(&r.ee_from_tool),
+                "base": "the simulated rig's robot base (the shots' world frame)",
+            })),
             "rows": rows.iter().map(row_json).collect::<Vec<_>>(),
         }),
     )?;

@@ -14,6 +14,10 @@
 //!    [`crate::pierce::plan`], and the planned point and axis against the shot's truth (robot base
 //!    frame): the axis against the true normal at the target, and against the true normal where
 //!    the tool meets the surface (the true surface's point nearest the planned one).
+//! 4. With an arm ([`ShotSetup::robot`], `awl trial --robot`): each trial's plan checked by
+//!    [`crate::pierce::plan_reach`] as `awl pierce --robot` does (the arm's base at the simulated
+//!    rig's robot base, the shot's joint state preferred when its views record one), its reach kept
+//!    in the row ([`TrialRow::reach`]) beside the target's distance from the base.
 
 mod table;
 
@@ -27,14 +31,15 @@ use crate::eval::{EvaluateParams, evaluate};
 use crate::handeye::{HandEyeParams, calibrate};
 use crate::io::scan::{TagSpec, read_scan};
 use crate::io::truth::{Truth, TruthTarget};
+use crate::kinematics::Arm;
 use crate::mesh::TriMesh;
-use crate::pierce::{PierceParams, plan};
+use crate::pierce::{PierceParams, ReachParams, TargetReach, plan, plan_reach, shot_joints};
 use crate::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use crate::sim::{SceneKind, ShotPose, SimParams, nearest_surface, rig_ee_from_camera, simulate, write_simulation};
 use crate::transform::pose_difference;
 use crate::workpiece::{FloorPlane, SurfaceModel, TargetSpec, Workpiece};
 
-pub use table::{TrialSummary, format_table};
+pub use table::{TrialSummary, format_table, reach_line};
 
 /// A calibrated hand-eye and how far it is from the truth.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -171,6 +176,8 @@ pub struct TrialRow {
     pub normal_base: Vector3<f64>,
     /// Whether the target is a face centre.
     pub face_centre: bool,
+    /// The planned target's reach for [`ShotSetup::robot`] (`None`: no arm given).
+    pub reach: Option<TargetReach>,
 }
 
 impl TrialRow {
@@ -178,6 +185,28 @@ impl TrialRow {
     pub fn error(&self) -> Vector3<f64> {
         self.estimate - self.truth
     }
+
+    /// The planned point's distance from the robot base's origin, metres.
+    pub fn base_distance_m(&self) -> f64 {
+        self.estimate.coords.norm()
+    }
+
+    /// ... and from the base's vertical axis (joint 1's), metres.
+    pub fn base_horizontal_m(&self) -> f64 {
+        self.estimate.coords.xy().norm()
+    }
+}
+
+/// The arm a trial's plans are checked for (`awl trial --robot`), its base at the simulated rig's
+/// robot base (the shots' world frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialRobot {
+    /// The arm.
+    pub arm: Arm,
+    /// `T_ee_tool`: the tool centre point on the flange.
+    pub ee_from_tool: Isometry3<f64>,
+    /// The reach settings (spin, tool capsule, collision distances).
+    pub params: ReachParams,
 }
 
 /// Seed of trial `k` (1-based) of a run seeded `seed`.
@@ -201,12 +230,16 @@ pub struct ShotSetup {
     pub ee_from_camera: Isometry3<f64>,
     /// Planning parameters.
     pub params: PierceParams,
+    /// The arm each plan's reach is checked for (`None`: not checked).
+    pub robot: Option<TrialRobot>,
 }
 
-/// Simulates the shot of trial `k` (1-based) into `dir`, plans the target and compares with the truth.
+/// Simulates the shot of trial `k` (1-based) into `dir`, plans the target and compares with the
+/// truth; with [`ShotSetup::robot`], checks the plan's reach for the arm.
 ///
 /// # Errors
-/// Any error of the simulation, writing, or planning (e.g. the tag not found).
+/// Any error of the simulation, writing, or planning (e.g. the tag not found), or of the reach
+/// check's inputs; an unreachable target is not an error (its row says why).
 pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) -> Result<TrialRow> {
     let shot_seed = shot_seed(setup.seed, k);
     let (scene, pose, params) = (setup.scene, setup.pose, &setup.params);
@@ -226,7 +259,11 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         _ => return Err(Error::invalid("shot truth", "the target has no p_world / n_world")),
     };
     let surface = SurfaceModel::new(&wp.model)?.with_floor(wp.floor);
-    let planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+    let mut planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+    if let Some(robot) = &setup.robot {
+        let reference = shot_joints(&shot)?;
+        plan_reach(&mut planned, &robot.arm, &robot.ee_from_tool, &wp.model, wp.floor, reference, &robot.params)?;
+    }
     let t = &planned.targets[0];
     let true_base_from_model = sim.truth.world_from_object * wp.object_from_model;
     let true_n_model = wp.object_from_model.inverse_transform_vector(&truth_target.n_object);
@@ -256,5 +293,6 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         ),
         normal_base: t.normal_base,
         face_centre: t.surface.corners.is_some(),
+        reach: t.reach.clone(),
     })
 }

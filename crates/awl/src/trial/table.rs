@@ -1,6 +1,7 @@
 //! The trials as the paper's Tables I-IV: per trial the true and estimated point (mm, robot base
 //! frame), the per-axis error and the distance; then the average and standard deviation (of the
-//! absolute per-axis errors and of the distance), plus the tool-axis error, its two sources and the tag-only figures.
+//! absolute per-axis errors and of the distance), plus the tool-axis error, its two sources and the tag-only figures;
+//! with an arm, a reach column and per trial its margins and clearance or why it is not reachable.
 
 use std::fmt::Write as _;
 
@@ -43,6 +44,10 @@ pub struct TrialSummary {
     pub median_bound_m: f64,
     /// Median distance, metres.
     pub median_m: f64,
+    /// Trials whose reach was checked (`awl trial --robot`) ...
+    pub reach_checked: usize,
+    /// ... and of those, the reachable ones.
+    pub reachable: usize,
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -92,6 +97,8 @@ impl TrialSummary {
             axis_within_bound: fraction(rows, |r| r.axis_error_rad <= r.prediction.axis_bound_rad),
             median_bound_m: median(&rows.iter().map(|r| r.prediction.position_bound_m).collect::<Vec<_>>()),
             median_m: median(&d),
+            reach_checked: rows.iter().filter(|r| r.reach.is_some()).count(),
+            reachable: rows.iter().filter(|r| r.reach.as_ref().is_some_and(|x| x.reachable)).count(),
         }
     }
 }
@@ -103,11 +110,19 @@ fn fraction(rows: &[TrialRow], within: impl Fn(&TrialRow) -> bool) -> f64 {
 /// The table (module docs), `title` above it, as monospaced text.
 pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
     let mm = |v: f64| v * 1e3;
+    let with_reach = rows.iter().any(|r| r.reach.is_some());
+    let reach_cell = |r: &TrialRow| match &r.reach {
+        Some(x) if x.reachable => " | yes".to_string(),
+        Some(_) => " | NO".to_string(),
+        None if with_reach => " | -".to_string(),
+        None => String::new(),
+    };
+    let rule = if with_reach { 140 } else { 132 };
     let mut s = String::new();
     let _ = writeln!(s, "{title}");
     let _ = writeln!(
         s,
-        "{:>5} | {:>26} | {:>26} | {:>22} | {:>8} | {:>8} | {:>8} | {:>8}",
+        "{:>5} | {:>26} | {:>26} | {:>22} | {:>8} | {:>8} | {:>8} | {:>8}{}",
         "trial",
         "GT x, y, z (mm)",
         "estimate x, y, z (mm)",
@@ -115,14 +130,15 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         "dist mm",
         "bound mm",
         "axis deg",
-        "bound"
+        "bound",
+        if with_reach { " | reach" } else { "" }
     );
-    let _ = writeln!(s, "{}", "-".repeat(132));
+    let _ = writeln!(s, "{}", "-".repeat(rule));
     for r in rows {
         let (g, e, d) = (r.truth, r.estimate, r.error());
         let _ = writeln!(
             s,
-            "{:>5} | {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2} | {:>8.2} | {:>8.2}",
+            "{:>5} | {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} | {:>6.2} {:>6.2} {:>6.2}  | {:>8.2} | {:>8.2} | {:>8.2} | {:>8.2}{}",
             r.trial,
             mm(g.x),
             mm(g.y),
@@ -136,7 +152,8 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
             mm(d.norm()),
             mm(r.prediction.position_bound_m),
             r.axis_error_rad.to_degrees(),
-            r.prediction.axis_bound_rad.to_degrees()
+            r.prediction.axis_bound_rad.to_degrees(),
+            reach_cell(r)
         );
     }
     let sum = TrialSummary::of(rows);
@@ -144,7 +161,7 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         let v: Vec<f64> = rows.iter().map(|r| r.error()[i].abs()).collect();
         std(&v)
     };
-    let _ = writeln!(s, "{}", "-".repeat(132));
+    let _ = writeln!(s, "{}", "-".repeat(rule));
     let a = sum.mean_abs_axis_m;
     let _ = writeln!(
         s,
@@ -199,5 +216,45 @@ pub fn format_table(title: &str, rows: &[TrialRow]) -> String {
         mm(sum.median_bound_m),
         mm(sum.median_m)
     );
+    if with_reach {
+        let _ = writeln!(s, "reach: {} of {} trial targets reachable", sum.reachable, sum.reach_checked);
+        for r in rows {
+            if let Some(line) = reach_line(r) {
+                let _ = writeln!(s, "  trial {}: {line}", r.trial);
+            }
+        }
+    }
     s
+}
+
+/// A row's reach in words: reachable with its configuration, spin, margins and clearance, or not
+/// and why; with the target's distance from the base (`None`: not checked).
+pub fn reach_line(r: &TrialRow) -> Option<String> {
+    let x = r.reach.as_ref()?;
+    let distance = format!(
+        "target {:.3} m from the base origin, {:.3} m from joint 1's axis, z {:+.3} m",
+        r.base_distance_m(),
+        r.base_horizontal_m(),
+        r.estimate.z
+    );
+    if !x.reachable {
+        return Some(format!("NOT reachable ({distance}): {}", x.reason));
+    }
+    let margins = x.margins.map_or(String::from("margins not recorded"), |m| {
+        format!(
+            "margins: limits {:.1} deg, wrist {:.2}, elbow {:.2}, shoulder {:.0} mm",
+            m.limit_rad.to_degrees(),
+            m.wrist,
+            m.elbow,
+            m.shoulder_m * 1e3
+        )
+    });
+    let clearance = x.clearance.map_or(String::from("nothing near"), |c| {
+        format!("{:.1} mm ({} to the {})", c.distance_m * 1e3, c.link.name(), c.against.name())
+    });
+    Some(format!(
+        "reachable, {}, spin {:.0} deg; {margins}; clearance {clearance} ({distance})",
+        x.branch.map_or(String::from("configuration not recorded"), |b| b.to_string()),
+        x.spin_rad.to_degrees()
+    ))
 }

@@ -1,0 +1,114 @@
+//! Setup shared by the CLI tests (`mod common;` in pierce.rs, robot_limits.rs, outputs.rs and
+//! trial_robot.rs): running the `awl` binary and reading what it prints or writes, a simulated
+//! piercing-time shot, and the workpiece made from the shot's CAD (sampled in the object frame, so
+//! the workpiece's `T_world_tag` is the truth's `T_object_tag`; the fused-model path is tested in
+//! crates/awl/tests/fuse_sim.rs and fuse_reference.rs).
+
+// each test file uses its part of these
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use awl::io::mesh::{read_mesh, write_cloud};
+use awl::io::scan::read_scan;
+use awl::io::truth::{Truth, read_truth};
+use awl::io::workpiece::write_workpiece;
+use awl::workpiece::{FloorPlane, Workpiece};
+use nalgebra::Vector3;
+
+/// Runs the `awl` binary with `args`.
+pub fn awl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_awl")).args(args).output().expect("run awl")
+}
+
+/// Its stdout and stderr, one after the other.
+pub fn text(out: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
+}
+
+/// `out` when the run succeeded; otherwise fails the test with what it printed.
+pub fn ok(out: Output) -> Output {
+    assert!(out.status.success(), "{}", text(&out));
+    out
+}
+
+/// A path as an argument.
+pub fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// A JSON file.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("read")).expect("json")
+}
+
+/// `awl simulate --scene SCENE --shot POSE --seed SEED [--views N] -o DIR`: a piercing-time shot
+/// (world = the robot base).
+pub fn simulate_shot(dir: &Path, scene: &str, pose: &str, seed: u64, views: Option<usize>) {
+    let seed = seed.to_string();
+    let views = views.map(|v| v.to_string());
+    let mut args = vec!["simulate", "--scene", scene, "--shot", pose, "--seed", &seed, "-o", s(dir)];
+    if let Some(v) = &views {
+        args.extend(["--views", v]);
+    }
+    ok(awl(&args));
+}
+
+/// A simulated box shot and the workpiece made from its CAD, in a temporary folder.
+pub struct CadWorkpiece {
+    /// The temporary folder (removed when dropped).
+    pub dir: tempfile::TempDir,
+    /// The shot folder (`DIR/shot`).
+    pub shot: PathBuf,
+    /// `DIR/workpiece.json`, its model `DIR/model.ply`.
+    pub workpiece: PathBuf,
+    /// The shot's truth.
+    pub truth: Truth,
+}
+
+/// A box shot in `pose` (`flat`, `tilt30`) with `seed`; its CAD sampled at `samples` points (seed
+/// 1) with normals as model.ply, and workpiece.json: `T_world_tag` = the truth's `T_object_tag`,
+/// the shot's tag with its id replaced by `tag_id` when given, the floor at the CAD's z = 0 (its
+/// footprint, where a fused model would record it).
+pub fn cad_workpiece(pose: &str, seed: u64, samples: usize, tag_id: Option<u32>) -> CadWorkpiece {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let shot = dir.path().join("shot");
+    simulate_shot(&shot, "box", pose, seed, None);
+    let truth = read_truth(&shot).expect("truth");
+    let scan = read_scan(&shot).expect("shot");
+    let cad = read_mesh(&shot.join(&truth.cad)).expect("cad");
+    let model = awl::normals::with_normals(
+        &cad.sample_surface(samples, 1).expect("sample"),
+        &awl::normals::NormalParams::default(),
+        None,
+    )
+    .expect("normals");
+    write_cloud(&dir.path().join("model.ply"), &model).expect("model");
+    let object_from_tag = truth.world_from_object.inverse() * truth.world_from_tag.expect("T_world_tag");
+    let mut tag = scan.tag.clone().expect("tag");
+    if let Some(id) = tag_id {
+        tag.id = id;
+    }
+    let wp = Workpiece {
+        model: "model.ply".into(),
+        world_from_tag: Some(object_from_tag),
+        tag,
+        views_checked: Vec::new(),
+        detections: Vec::new(),
+        refinement: None,
+        floor: FloorPlane::new(Vector3::z(), 0.0),
+        hand_eye: None,
+        warnings: Vec::new(),
+    };
+    let workpiece = dir.path().join("workpiece.json");
+    write_workpiece(&workpiece, &wp).expect("workpiece");
+    CadWorkpiece { dir, shot, workpiece, truth }
+}
+
+/// Writes `T_ee_tool` (a tool `tool_m` along the flange's z axis) to `path` for `--tcp`.
+pub fn write_tcp(path: &Path, tool_m: f64) {
+    let ee_from_tool = nalgebra::Isometry3::translation(0.0, 0.0, tool_m);
+    let rows = awl::transform::rows_from_isometry(&ee_from_tool);
+    std::fs::write(path, serde_json::json!({ "T_ee_tool": rows }).to_string()).expect("tcp");
+}
