@@ -117,10 +117,21 @@ pub(super) fn settle(
     config: &RegistrationConfig,
     view: &PreparedView,
     result: &IcpResult,
+    symmetries: &Symmetries,
     report: &mut ViewReport,
 ) -> Option<Isometry3<f64>> {
     record(report, result);
     report.unobserved = result.unobserved.clone();
+    let verdict =
+        judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)).and_then(|()| {
+            symmetries.unconfirmed(result).map_or(Ok(()), |u| {
+            Err(format!(
+                "ill-conditioned (degenerate geometry): {:.1e} < {:.1e}, a {:?} about axis {:.2?} unobserved in this \
+                 view only",
+                u.eigen_ratio, config.icp.unobserved_ratio, u.kind, u.axis
+            ))
+        })
+        });
     if std::env::var_os("AWL_DEBUG_HOLD").is_some() {
         let d = result.target_from_source * view.seed.inverse();
         eprintln!(
@@ -131,7 +142,7 @@ pub(super) fn settle(
             result.unobserved
         );
     }
-    match judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)) {
+    match verdict {
         Ok(()) => {
             report.status = ViewStatus::Accepted;
             Some(result.target_from_source)
@@ -146,13 +157,36 @@ pub(super) fn settle(
     }
 }
 
-/// Adds the directions `result` found unobserved to `symmetries` (the object's, as far as the
-/// views registered so far tell), once each.
-pub(super) fn note_symmetries(symmetries: &mut Vec<Unobserved>, result: &IcpResult) {
-    for u in &result.unobserved {
-        if !symmetries.iter().any(|s| s.same_as(u)) {
-            symmetries.push(u.clone());
+/// The directions the views' registrations found unobserved, each with the number of views that
+/// found it. One that two or more views found is the object's (a symmetry: a cylinder's spin),
+/// held at the seed wherever it is weak; one that a single view found says that view saw too little
+/// of the surface, and the view is rejected as ill-conditioned (its seed may be centimetres off
+/// along it).
+#[derive(Debug, Default)]
+pub(super) struct Symmetries {
+    found: Vec<(Unobserved, usize)>,
+}
+
+impl Symmetries {
+    /// Counts the directions `result` found unobserved.
+    pub(super) fn note(&mut self, result: &IcpResult) {
+        for u in &result.unobserved {
+            match self.found.iter_mut().find(|(s, _)| s.same_as(u)) {
+                Some((_, count)) => *count += 1,
+                None => self.found.push((u.clone(), 1)),
+            }
         }
+    }
+
+    /// The directions two or more views found.
+    pub(super) fn confirmed(&self) -> Vec<Unobserved> {
+        self.found.iter().filter(|(_, count)| *count >= 2).map(|(u, _)| u.clone()).collect()
+    }
+
+    /// The first of `result`'s unobserved directions no other view found.
+    fn unconfirmed<'a>(&self, result: &'a IcpResult) -> Option<&'a Unobserved> {
+        let confirmed = self.confirmed();
+        result.unobserved.iter().find(|u| !confirmed.iter().any(|c| c.same_as(u)))
     }
 }
 
@@ -233,7 +267,8 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
     poses[anchor] = Some(seed_of(anchor));
     make_anchor(&mut reports[anchor]);
     let mut merged = vec![anchor];
-    let mut symmetries = Vec::new();
+    let mut symmetries = Symmetries::default();
+    let mut unconfirmed = Vec::new();
     let mut model = LevelModel::new(&config.icp, voxel)?;
     if let Ok(view) = &views[anchor] {
         model.add(&view.cloud.transformed(&seed_of(anchor)))?;
@@ -242,12 +277,33 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
         let centre = |i: usize| views[i].as_ref().map(|v| v.seed.translation.vector).unwrap_or_default();
         let i = remaining.remove(next_view(centre, &remaining, &merged));
         let Ok(view) = &views[i] else { continue };
-        let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &symmetries)?;
-        poses[i] = settle(config, view, &result, &mut reports[i]);
-        note_symmetries(&mut symmetries, &result);
-        if let Some(pose) = poses[i] {
-            model.add(&view.cloud.transformed(&pose))?;
-            merged.push(i);
+        let expected = symmetries.confirmed();
+        let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &expected)?;
+        symmetries.note(&result);
+        poses[i] = settle(config, view, &result, &symmetries, &mut reports[i]);
+        match poses[i] {
+            Some(pose) => {
+                model.add(&view.cloud.transformed(&pose))?;
+                merged.push(i);
+            }
+            None if !result.unobserved.is_empty() => unconfirmed.push((i, result.unobserved)),
+            None => {}
+        }
+    }
+    // the views left out for directions only they had found, once later views have found them too
+    let confirmed = symmetries.confirmed();
+    for (i, found) in unconfirmed {
+        let Ok(view) = &views[i] else { continue };
+        if !found.iter().all(|u| confirmed.iter().any(|c| c.same_as(u))) {
+            continue;
+        }
+        let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &confirmed)?;
+        {
+            poses[i] = settle(config, view, &result, &symmetries, &mut reports[i]);
+            if let Some(pose) = poses[i] {
+                model.add(&view.cloud.transformed(&pose))?;
+                merged.push(i);
+            }
         }
     }
     drop(model); // the sequential pass's targets: not needed by the refinements

@@ -12,7 +12,7 @@ use nalgebra::Isometry3;
 
 use super::config::RegistrationConfig;
 use super::multiview::{
-    LevelModel, Registered, blank_report, make_anchor, next_view, no_usable_view, note_symmetries, place, settle,
+    LevelModel, Registered, Symmetries, blank_report, make_anchor, next_view, no_usable_view, place, settle,
 };
 use super::prepare::{PreparedView, Preparer, Tally};
 use super::report::ViewReport;
@@ -96,7 +96,7 @@ pub(crate) fn register_as_prepared(
     let seed = view.seed;
     merge(a, view, seed, &mut model, &mut feed.reports[a])?;
     let mut merged = vec![a];
-    let mut symmetries = Vec::new();
+    let mut symmetries = Symmetries::default();
     register_seconds += start.elapsed().as_secs_f64();
     let centre = |i: usize| preparer.seed(i).map(|s| s.translation.vector).unwrap_or_default();
     while !remaining.is_empty() {
@@ -108,11 +108,12 @@ pub(crate) fn register_as_prepared(
         merged.pop();
         let guess = guess.filter(|g| !feed.stash.contains_key(g));
         let levels = model.levels();
+        let expected = symmetries.confirmed();
         let (prepared, registered) = rayon::join(
             || guess.map(|g| (g, preparer.view(g))),
             || {
                 let start = Instant::now();
-                let r = register_levels_expecting(&view.cloud, &levels, &view.seed, &config.icp, &symmetries);
+                let r = register_levels_expecting(&view.cloud, &levels, &view.seed, &config.icp, &expected);
                 (r, start.elapsed().as_secs_f64())
             },
         );
@@ -124,8 +125,8 @@ pub(crate) fn register_as_prepared(
         let start = Instant::now();
         let (result, seconds) = registered;
         let result = result?;
-        note_symmetries(&mut symmetries, &result);
-        if let Some(pose) = settle(config, &view, &result, &mut feed.reports[i]) {
+        symmetries.note(&result);
+        if let Some(pose) = settle(config, &view, &result, &symmetries, &mut feed.reports[i]) {
             merge(i, view, pose, &mut model, &mut feed.reports[i])?;
             merged.push(i);
         }
