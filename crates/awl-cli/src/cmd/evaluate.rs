@@ -83,6 +83,13 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
     model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
     let cad = super::common::read_mesh_warned(&args.cad)?;
+    anyhow::ensure!(
+        !cad.triangles.is_empty(),
+        "{}: --cad: the mesh has no triangles ({} vertices): give a surface mesh (a PLY with a `face` element, an STL \
+         with facets, an OBJ with `f` lines)",
+        args.cad.display(),
+        cad.vertices.len()
+    );
     let (init, source) = match (&args.init, &args.truth) {
         (Some(path), _) => (Some(read_transform(path, "T_object_model")?), Some(path)),
         (None, Some(path)) => (Some(read_truth(path)?.world_from_object.inverse()), Some(path)),
