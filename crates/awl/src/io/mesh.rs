@@ -130,7 +130,7 @@ fn finite_vertices(path: &Path, mesh: &TriMesh) -> Result<()> {
     let Some(v) = mesh.vertices.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) else { return Ok(()) };
     let p = mesh.vertices[v];
     let used = match mesh.triangles.iter().position(|t| t.contains(&(v as u32))) {
-        Some(t) => format!(", a corner of triangle {t}"),
+        Some(t) => format!(", a corner of triangle {t},"),
         None => String::new(),
     };
     Err(Error::format(
