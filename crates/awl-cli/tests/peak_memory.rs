@@ -29,7 +29,7 @@ fn awl_peak(args: &[&str]) -> (bool, String, f64) {
     let kb: f64 = stderr
         .lines()
         .filter_map(|l| l.strip_prefix("awl-peak-kb "))
-        .last()
+        .next_back()
         .and_then(|v| v.trim().parse().ok())
         .unwrap_or_else(|| panic!("no peak from {TIME}: {stderr}"));
     let text = format!("{}{stderr}", String::from_utf8_lossy(&out.stdout));

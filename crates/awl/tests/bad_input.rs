@@ -257,7 +257,7 @@ fn issue_55_vague_errors_name_the_place_and_the_fix() {
     let scan = read_scan(&scan_dir).expect("read");
     let mut config = awl::pipeline::FuseConfig::fast();
     config.roi.radius_m = Some(1e-4);
-    let err = awl::pipeline::fuse(&scan, &config, &|_, _, _| {}).err().expect("every view emptied").to_string();
+    let err = awl::pipeline::fuse(&scan, &config, &|_, _, _| {}).expect_err("every view emptied").to_string();
     assert_mentions(
         &err,
         &["in 2 of 2 views (0, 1)", "`roi.radius_m` = 0.0001 m of the focus point (", "raise `roi.radius_m`"],

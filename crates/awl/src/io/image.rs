@@ -584,6 +584,11 @@ mod tests {
         huge[sof + 5..sof + 9].copy_from_slice(&[0x4E, 0x20, 0x4E, 0x20]);
         let mut cases = cases;
         cases.push(("huge.jpg", huge, "not a decodable JPEG"));
+        // 16384 x 16384 (the largest side accepted) over a small image's data: more pixels than its
+        // bytes can code, refused before decoding (zune-jpeg fills the missing blocks)
+        let mut lying = bytes.clone();
+        lying[sof + 5..sof + 9].copy_from_slice(&[0x40, 0x00, 0x40, 0x00]);
+        cases.push(("lying.jpg", lying, "declares 16384 x 16384 (268435456 pixels), more than a"));
         for (name, content, want) in cases {
             let path = dir.path().join(name);
             std::fs::write(&path, content).expect("write");

@@ -530,7 +530,7 @@ mod tests {
         assert!(err.contains("(at least 4 bytes a record, after 12 for the elements before it)"), "{err}");
         // the counts fit, a list's length does not: the record is named
         let face = "element face 1\nproperty list uint int vertex_indices\nend_header";
-        let mut short = format!("{}", head.replace("vertex 2", "vertex 1").replace("ascii", "binary_big_endian"))
+        let mut short = (head.replace("vertex 2", "vertex 1").replace("ascii", "binary_big_endian"))
             .replace("end_header", face)
             .into_bytes();
         short.extend([0u8; 12]);
