@@ -185,3 +185,74 @@ fn a_json_config_goes_over_the_preset_and_null_turns_a_stage_off() {
         assert!(!out_dir.exists(), "nothing is written");
     }
 }
+
+/// Issue 55: a region-of-interest crop that leaves no view any points is one error, naming
+/// `roi.radius_m`, its value and the focus point it used, not one message per view; nothing is
+/// written.
+#[test]
+fn an_empty_region_of_interest_is_one_error_naming_the_key_and_the_focus() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = scan(dir.path(), "scan");
+    let config = dir.path().join("tiny_roi.json");
+    std::fs::write(&config, r#"{"roi": {"radius_m": 0.0001}}"#).expect("config");
+    let out_dir = dir.path().join("out");
+    let s = |p: &Path| p.to_str().expect("utf-8").to_string();
+    let out = awl(&["fuse", &s(&scan), "-o", &s(&out_dir), "--quiet", "--config", &s(&config)]);
+    let t = text(&out);
+    assert!(!out.status.success() && !t.contains("panicked"), "{t}");
+    assert_eq!(t.matches("roi.radius_m").count(), 2, "the key once, in the message and its fix: {t}");
+    for want in
+        ["in 4 of 4 views (0, 1, 2, 3)", "`roi.radius_m` = 0.0001 m of the focus point (", "raise `roi.radius_m`"]
+    {
+        assert!(t.contains(want), "`{want}` not in: {t}");
+    }
+    assert!(!t.contains("view 1:"), "no reason per view: {t}");
+    assert!(!out_dir.exists(), "nothing written");
+}
+
+/// Issue 55: NaN and infinite points in a view's cloud file are dropped with a warning naming the
+/// file and how many (the fuse goes on with the finite ones).
+#[test]
+fn non_finite_points_in_a_cloud_view_are_dropped_with_a_warning() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scan = dir.path().join("clouds");
+    std::fs::create_dir_all(scan.join("clouds")).expect("mkdir");
+    let mut rows = String::new();
+    let mut count = 0;
+    for i in 0..60 {
+        for j in 0..60 {
+            let (x, y) = ((i - 30) as f64 * 0.004, (j - 30) as f64 * 0.004);
+            rows.push_str(&format!("{x} {y} {}\n", 0.5 + 0.02 * (x * 20.0).sin() * (y * 15.0).cos()));
+            count += 1;
+        }
+    }
+    let bad = format!("{rows}nan 0 0.5\n0 inf 0.5\n");
+    let ply = |rows: &str, n: usize| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
+             end_header\n{rows}"
+        )
+    };
+    std::fs::write(scan.join("clouds/000000.ply"), ply(&bad, count + 2)).expect("write");
+    std::fs::write(scan.join("clouds/000001.ply"), ply(&rows, count)).expect("write");
+    let id = "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]";
+    let moved = "[[1,0,0,0.002],[0,1,0,0],[0,0,1,0],[0,0,0,1]]";
+    let manifest = format!(
+        r#"{{"format": "awl-scan/1", "views": [{{"points": "clouds/000000.ply", "T_world_camera": {id}}},
+            {{"points": "clouds/000001.ply", "T_world_camera": {moved}}}]}}"#
+    );
+    std::fs::write(scan.join("scan.json"), manifest).expect("write");
+    let r = report(&fuse(&scan, &dir.path().join("out")));
+    let warnings = r["warnings"].to_string();
+    assert!(
+        warnings.contains("clouds/000000.ply: 2 of 3602 points have a NaN or infinite coordinate and were dropped"),
+        "{warnings}"
+    );
+    assert_eq!(r["views"][0]["status"], "anchor", "{}", r["views"]);
+    // `awl info` on the file: the finite points' bounds, the warning on stderr
+    let out = awl(&["info", scan.join("clouds/000000.ply").to_str().expect("utf-8")]);
+    let t = text(&out);
+    assert!(out.status.success(), "{t}");
+    assert!(t.contains("points: 3600") && t.contains("bounds: x [-0.120, 0.116]") && !t.contains("empty"), "{t}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("warning: ") && t.contains("2 of 3602 points"), "{t}");
+}

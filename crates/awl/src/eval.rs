@@ -42,9 +42,19 @@ impl MeshDistance {
     /// Builds the BVH of `mesh`.
     ///
     /// # Errors
-    /// [`Error::Invalid`] when the mesh is empty or degenerate.
+    /// [`Error::Invalid`] when the mesh has no triangles, or is invalid or degenerate.
     pub fn new(mesh: &TriMesh) -> Result<Self> {
         mesh.validate("CAD mesh")?;
+        if mesh.triangles.is_empty() {
+            return Err(Error::invalid(
+                "CAD mesh",
+                format!(
+                    "it has no triangles ({} vertices): give a surface mesh (a PLY with a `face` element, an STL with \
+                     facets, an OBJ with `f` lines)",
+                    mesh.vertices.len()
+                ),
+            ));
+        }
         let vertices = mesh.vertices.iter().map(|p| PVector::new(p.x, p.y, p.z)).collect();
         let mesh = ParryMesh::new(vertices, mesh.triangles.clone())
             .map_err(|e| Error::invalid("CAD mesh", format!("cannot build its BVH: {e:?}")))?;

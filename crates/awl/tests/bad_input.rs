@@ -178,3 +178,89 @@ fn bad_cloud_and_mesh_files_name_the_file() {
     let err = mesh::read_mesh(&p("model.step")).expect_err("unknown mesh format").to_string();
     assert_mentions(&err, &["model.step", "stl"]);
 }
+
+/// Issue 55's vague errors, each now naming the file, field or key and what to change: a binary STL
+/// cut short (was `failed to fill whole buffer`), a CAD without triangles (was `EmptyIndices`), a
+/// NaN point in a cloud file (was `k-d tree: point 0 is not finite` further on: now dropped with a
+/// warning naming the file, a mesh's refused naming the vertex), the region-of-interest crop that
+/// empties every view (was once per view, without the key or the focus point).
+#[test]
+fn issue_55_vague_errors_name_the_place_and_the_fix() {
+    let root = tempfile::tempdir().expect("tempdir");
+    let p = |name: &str| root.path().join(name);
+    // a binary STL of 3 facets cut short
+    let mut stl = vec![b' '; 80];
+    stl.extend(3u32.to_le_bytes());
+    for _ in 0..3 {
+        for v in [0f32, 0., 1., 0., 0., 0., 1., 0., 0., 0., 1., 0.] {
+            stl.extend(v.to_le_bytes());
+        }
+        stl.extend([0, 0]);
+    }
+    fs::write(p("cut.stl"), &stl[..200]).expect("w");
+    let err = mesh::read_mesh(&p("cut.stl")).expect_err("cut").to_string();
+    assert_mentions(&err, &["cut.stl", "facet count (bytes 80-83) is 3", "84 + 50 × 3 = 234 bytes", "has 200"]);
+    assert!(!err.contains("fill whole buffer"), "{err}");
+    // bytes after the facets: read, with a warning
+    fs::write(p("long.stl"), [stl.as_slice(), b"trailer"].concat()).expect("w");
+    let long = mesh::read_mesh_checked(&p("long.stl")).expect("long");
+    assert_eq!((long.value.triangles.len(), long.value.vertices.len()), (3, 3));
+    assert_eq!(long.warnings.len(), 1);
+    assert_mentions(&long.warnings[0], &["long.stl", "7 bytes after the 3 facets"]);
+    // a binary STL whose header starts with `solid` is still binary when its size says so
+    fs::write(p("solid.stl"), [b"solid by name".as_slice(), &stl[13..]].concat()).expect("w");
+    assert_eq!(mesh::read_mesh(&p("solid.stl")).expect("binary named solid").triangles.len(), 3);
+    // a mesh with a NaN vertex is refused, naming the vertex and a triangle using it
+    let mut nan = stl.clone();
+    nan[84 + 12..84 + 16].copy_from_slice(&f32::NAN.to_le_bytes());
+    fs::write(p("nan.stl"), &nan).expect("w");
+    let err = mesh::read_mesh(&p("nan.stl")).expect_err("nan").to_string();
+    assert_mentions(&err, &["nan.stl", "vertex 0 (NaN, 0, 0), a corner of triangle 0, is not finite", "fix or remove"]);
+    // a CAD without triangles: named before any BVH is built
+    fs::write(p("verts.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\n").expect("w");
+    let cad = mesh::read_mesh(&p("verts.obj")).expect("vertices only");
+    let err = awl::eval::MeshDistance::new(&cad).err().expect("no triangles").to_string();
+    assert_mentions(&err, &["CAD mesh", "no triangles (0 vertices)", "`face` element"]);
+    assert!(!err.contains("EmptyIndices"), "{err}");
+    // NaN and infinite points in clouds: dropped, the warning names the file and the count
+    let header = |n: usize| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+        )
+    };
+    let rows = "0 0 0\n1 0 0\nnan 1 0\n0 0 1\n0 inf 2\n";
+    fs::write(p("nan.ply"), format!("{}{rows}", header(5))).expect("w");
+    let cloud = mesh::read_cloud_checked(&p("nan.ply")).expect("nan cloud");
+    assert_eq!(cloud.value.len(), 3);
+    let bounds = cloud.value.bounds().expect("the finite points' bounds");
+    assert_eq!((bounds.min.x, bounds.max.x, bounds.max.z), (0.0, 1.0, 1.0));
+    assert_eq!(cloud.warnings.len(), 1);
+    assert_mentions(
+        &cloud.warnings[0],
+        &["nan.ply", "2 of 5 points have a NaN or infinite coordinate and were dropped"],
+    );
+    let pcd = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n\
+               1 2 3\nnan nan nan\n4 5 6\n";
+    fs::write(p("nan.pcd"), pcd).expect("w");
+    let cloud = mesh::read_cloud_checked(&p("nan.pcd")).expect("nan pcd");
+    assert_eq!(cloud.value.len(), 2);
+    assert_mentions(&cloud.warnings.join(" "), &["nan.pcd", "1 of 3 points"]);
+    // the region of interest that empties every view: one error, the key, its value, the focus point
+    let sim = awl::sim::simulate(&awl::sim::SimParams {
+        views: 2,
+        seed: 3,
+        ..awl::sim::SimParams::scan(awl::sim::SceneKind::Box)
+    })
+    .expect("simulate");
+    let scan_dir = p("scan");
+    awl::sim::write_simulation(&scan_dir, &sim, false).expect("scan");
+    let scan = read_scan(&scan_dir).expect("read");
+    let mut config = awl::pipeline::FuseConfig::fast();
+    config.roi.radius_m = Some(1e-4);
+    let err = awl::pipeline::fuse(&scan, &config, &|_, _, _| {}).expect_err("every view emptied").to_string();
+    assert_mentions(
+        &err,
+        &["in 2 of 2 views (0, 1)", "`roi.radius_m` = 0.0001 m of the focus point (", "raise `roi.radius_m`"],
+    );
+    assert_eq!(err.matches("focus point").count(), 1, "once, not per view: {err}");
+}

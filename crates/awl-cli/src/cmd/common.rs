@@ -36,6 +36,21 @@ pub fn stage_bar(quiet: bool) -> ProgressBar {
     bar
 }
 
+/// Reads a point cloud (`.ply` / `.pcd`), printing what the reader dropped or ignored (non-finite
+/// points, bytes after the body) as warnings on stderr.
+pub fn read_cloud_warned(path: &Path) -> awl::Result<awl::PointCloud> {
+    let loaded = awl::io::mesh::read_cloud_checked(path)?;
+    loaded.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
+    Ok(loaded.value)
+}
+
+/// Reads a mesh (`.ply` / `.stl` / `.obj`), printing what the reader ignored as warnings on stderr.
+pub fn read_mesh_warned(path: &Path) -> awl::Result<awl::mesh::TriMesh> {
+    let loaded = awl::io::mesh::read_mesh_checked(path)?;
+    loaded.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
+    Ok(loaded.value)
+}
+
 /// Writes pretty JSON atomically.
 pub fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(value)?;

@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::eval::{EvaluateParams, Evaluation, evaluate};
 use awl::io::evaluation::{read_transform, write_evaluation};
-use awl::io::mesh::{read_cloud, read_mesh};
 use awl::io::outputs::{OutputCheck, StagedFolder};
 use awl::io::report::{REPORT_FILE, write_report};
 use awl::io::truth::read_truth;
@@ -80,10 +79,17 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
         check.input_file(truth, "--truth");
     }
     check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS).check()?;
-    let model = read_cloud(&args.model)?;
+    let model = super::common::read_cloud_warned(&args.model)?;
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
     model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
-    let cad = read_mesh(&args.cad)?;
+    let cad = super::common::read_mesh_warned(&args.cad)?;
+    anyhow::ensure!(
+        !cad.triangles.is_empty(),
+        "{}: --cad: the mesh has no triangles ({} vertices): give a surface mesh (a PLY with a `face` element, an STL \
+         with facets, an OBJ with `f` lines)",
+        args.cad.display(),
+        cad.vertices.len()
+    );
     let (init, source) = match (&args.init, &args.truth) {
         (Some(path), _) => (Some(read_transform(path, "T_object_model")?), Some(path)),
         (None, Some(path)) => (Some(read_truth(path)?.world_from_object.inverse()), Some(path)),

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::cloud::Bounds;
 use awl::io::scan::{ViewData, ViewPose, load_view, read_scan};
-use awl::io::{extension, mesh};
+use awl::io::{Loaded, extension, mesh};
 use serde_json::json;
 
 /// Arguments of `awl info`.
@@ -47,9 +47,11 @@ fn scan_info(dir: &Path) -> anyhow::Result<serde_json::Value> {
     let scan = read_scan(dir)?;
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
     let mut views = Vec::new();
+    let mut warnings = scan.warnings.clone();
     let mut world = awl::PointCloud::default();
     for (i, view) in scan.views.iter().enumerate() {
         let loaded = load_view(&scan, i, rays.as_deref()).with_context(|| format!("view {i}"))?;
+        warnings.extend(loaded.warnings.iter().map(|w| format!("view {i}: {w}")));
         let cloud_world = loaded.cloud_camera.transformed(&loaded.world_from_camera);
         let (kind, file) = match &view.data {
             ViewData::Depth { depth, color } => (if color.is_some() { "depth+color" } else { "depth" }, depth),
@@ -77,20 +79,23 @@ fn scan_info(dir: &Path) -> anyhow::Result<serde_json::Value> {
         "hand_eye": scan.ee_from_camera.is_some(),
         "truth": dir.join("truth.json").is_file(),
         "bounds_world": bounds_json(world.bounds()),
+        "warnings": warnings,
     }))
 }
 
 fn file_info(path: &Path) -> anyhow::Result<serde_json::Value> {
     let ext = extension(path);
     if ext == "stl" || ext == "obj" {
-        let m = mesh::read_mesh(path)?;
+        let Loaded { value: m, warnings } = mesh::read_mesh_checked(path)?;
         let cloud = awl::PointCloud::from_points(m.vertices.iter().map(|v| v.cast::<f32>()).collect());
         return Ok(json!({ "type": "mesh", "path": path, "vertices": m.vertices.len(), "triangles": m.triangles.len(),
-                          "area_m2": m.area(), "bounds": bounds_json(cloud.bounds()) }));
+                          "area_m2": m.area(), "bounds": bounds_json(cloud.bounds()), "warnings": warnings }));
     }
-    let cloud = mesh::read_cloud(path)?;
+    // (points with a NaN or infinite coordinate dropped, with a warning: the bounds are the finite points')
+    let Loaded { value: cloud, warnings } = mesh::read_cloud_checked(path)?;
     let mut info = json!({ "type": "cloud", "path": path, "points": cloud.len(), "normals": cloud.normals.is_some(),
-                           "colors": cloud.colors.is_some(), "bounds": bounds_json(cloud.bounds()) });
+                           "colors": cloud.colors.is_some(), "bounds": bounds_json(cloud.bounds()),
+                           "warnings": warnings });
     if ext == "ply" {
         if let Ok(m) = awl::io::ply::read_ply_mesh(path) {
             if !m.triangles.is_empty() {
@@ -143,6 +148,9 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
         anyhow::bail!("{}: no such file or folder", path.display());
     }
     let info = if path.is_dir() { scan_info(path)? } else { file_info(path)? };
+    for w in info["warnings"].as_array().into_iter().flatten() {
+        eprintln!("warning: {}", w.as_str().unwrap_or_default());
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&info)?);
     } else {

@@ -7,7 +7,6 @@ use anyhow::Context;
 use awl::io::arm::read_arm;
 use awl::io::evaluation::read_transform;
 use awl::io::handeye::read_ee_from_camera;
-use awl::io::mesh::read_cloud;
 use awl::io::outputs::{OutputCheck, write_files_atomic};
 use awl::io::plan::{PlanSources, plan_json, plan_value_text, programs_json};
 use awl::io::scan::read_scan;
@@ -173,8 +172,8 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let mut shot = read_scan(&args.shot)?;
     check_outputs(args, &model_path, &shot)?;
     let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
-    let model =
-        read_cloud(&model_path).with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
+    let model = super::common::read_cloud_warned(&model_path)
+        .with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
     // the hand-eye the shot's views start from: a given calibration, else the workpiece's (refined
     // from the scan) when the shot records the scan's, else the shot's recorded one
     let (hand_eye_source, prior) = match &args.hand_eye {

@@ -4,7 +4,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use awl::PointCloud;
-use awl::io::mesh::read_cloud;
 use awl::io::outputs::OutputCheck;
 use awl::normals::{NormalParams, with_normals};
 use awl::registration::{IcpParams, register};
@@ -47,7 +46,7 @@ fn read_init(path: &Path) -> anyhow::Result<Isometry3<f64>> {
 }
 
 fn prepared(path: &Path) -> anyhow::Result<PointCloud> {
-    let cloud = read_cloud(path)?;
+    let cloud = super::common::read_cloud_warned(path)?;
     anyhow::ensure!(!cloud.is_empty(), "{}: the cloud is empty", path.display());
     // a NaN or infinite point is named here, with the file, not deep in the k-d tree
     cloud.validate(&path.display().to_string()).context("remove or fix the non-finite points")?;

@@ -259,8 +259,10 @@ pub fn read_color_image_every_nth(path: &Path, step: usize) -> Result<(ColorImag
     }
 }
 
-/// Decodes a whole JPEG file's `bytes` to RGB: the image and its `(width, height)`.
+/// Decodes a whole JPEG file's `bytes` to RGB: the image and its `(width, height)`; a header that
+/// declares more pixels than the file's bytes can code is refused before anything is allocated.
 fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<(ColorImage, (u32, u32))> {
+    let file_len = bytes.len();
     use zune_jpeg::zune_core::bytestream::ZCursor;
     use zune_jpeg::zune_core::colorspace::ColorSpace;
     use zune_jpeg::zune_core::options::DecoderOptions;
@@ -274,6 +276,18 @@ fn decode_jpeg(path: &Path, bytes: Vec<u8>) -> Result<(ColorImage, (u32, u32))> 
     let bad = |e: zune_jpeg::errors::DecodeErrors| Error::format(path, format!("not a decodable JPEG: {e}"));
     decoder.decode_headers().map_err(bad)?;
     let (width, height) = decoder.dimensions().ok_or_else(|| Error::format(path, "JPEG header without a size"))?;
+    // every 8 x 8 block of the first component takes at least one bit of entropy-coded data (its DC
+    // code; in a progressive JPEG, in the first DC scan): at most 512 pixels a byte of the file
+    let pixels = width as u64 * height as u64;
+    if pixels > 512 * file_len as u64 + 65_536 {
+        return Err(Error::format(
+            path,
+            format!(
+                "JPEG header declares {width} x {height} ({pixels} pixels), more than a {file_len}-byte file can hold \
+                 (every 8 x 8 block takes at least a bit): the file is truncated or its header is corrupt"
+            ),
+        ));
+    }
     let size = decoder.output_buffer_size().ok_or_else(|| Error::format(path, "JPEG image is too large to decode"))?;
     let mut raw = vec![0u8; size];
     decoder.decode_into(&mut raw).map_err(bad)?;
@@ -570,6 +584,11 @@ mod tests {
         huge[sof + 5..sof + 9].copy_from_slice(&[0x4E, 0x20, 0x4E, 0x20]);
         let mut cases = cases;
         cases.push(("huge.jpg", huge, "not a decodable JPEG"));
+        // 16384 x 16384 (the largest side accepted) over a small image's data: more pixels than its
+        // bytes can code, refused before decoding (zune-jpeg fills the missing blocks)
+        let mut lying = bytes.clone();
+        lying[sof + 5..sof + 9].copy_from_slice(&[0x40, 0x00, 0x40, 0x00]);
+        cases.push(("lying.jpg", lying, "declares 16384 x 16384 (268435456 pixels), more than a"));
         for (name, content, want) in cases {
             let path = dir.path().join(name);
             std::fs::write(&path, content).expect("write");

@@ -26,6 +26,17 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
+/// What a reader returns when it can also notice things worth telling the user without refusing
+/// the file: the value, and its warnings (each naming the file: non-finite points dropped, bytes
+/// after the body the header declares). The library never prints them; the CLI does.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Loaded<T> {
+    /// What was read.
+    pub value: T,
+    /// What reading it dropped or ignored, one sentence each, naming the file.
+    pub warnings: Vec<String>,
+}
+
 /// Reads a whole file, naming it in the error.
 ///
 /// # Errors

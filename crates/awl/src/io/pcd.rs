@@ -11,8 +11,8 @@ use nalgebra::{Point3, Vector3};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::io::pcd_header::{Data, parse_header};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::pcd_header::{Data, Header, parse_header};
+use crate::io::{Loaded, read_bytes, write_atomic};
 
 /// Body encoding of a written PCD file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -66,6 +66,22 @@ pub fn read_pcd_organised(path: &Path) -> Result<OrganisedCloud> {
 /// # Errors
 /// As [`parse_pcd`].
 pub fn parse_pcd_organised(path_for_errors: &Path, bytes: &[u8]) -> Result<OrganisedCloud> {
+    parse_pcd_checked(path_for_errors, bytes).map(|loaded| loaded.value)
+}
+
+/// Parses PCD bytes keeping every point (NaNs included) and the grid size, with a warning naming
+/// the file when bytes follow a binary body's records (they are ignored; after `binary_compressed`
+/// data they are usual, PCL's writer leaves some, and not warned about).
+///
+/// The body's size is checked against the header before anything is allocated: `POINTS` records
+/// of the `SIZE` × `COUNT` bytes the fields take (binary), `POINTS` lines of at least two
+/// characters a value (ascii); for `binary_compressed`, the declared uncompressed size must be
+/// `POINTS` × the record size, the compressed bytes must be in the file, and LZF cannot expand
+/// them more than 88 times; nothing is decompressed beyond the declared size.
+///
+/// # Errors
+/// As [`parse_pcd`].
+pub fn parse_pcd_checked(path_for_errors: &Path, bytes: &[u8]) -> Result<Loaded<OrganisedCloud>> {
     let path = path_for_errors;
     let h = parse_header(path, bytes)?;
     let find = |name: &str| h.fields.iter().position(|f| f.name == name);
@@ -78,11 +94,13 @@ pub fn parse_pcd_organised(path_for_errors: &Path, bytes: &[u8]) -> Result<Organ
         _ => None,
     };
     let rgb = find("rgb").or_else(|| find("rgba")).filter(|&i| h.fields[i].size == 4);
-    let n = h.points;
     let body = bytes.get(h.body_offset..).unwrap_or_default();
+    let warnings: Vec<String> = check_body_size(path, &h, body)?.into_iter().collect();
+    let n = h.points;
     let record = h.record_size;
-    // Each point needs at least one byte (binary) or two characters (ascii) of the file.
-    let cap = n.min(body.len() / record.max(2));
+    // binary: the body holds the n records; ascii: at least two characters a point; compressed: the
+    // point count the decompressed size allows (checked above to follow from the body's size)
+    let cap = if h.data == Data::Compressed { n } else { n.min(body.len() / record.max(2)) };
     let mut points = Vec::with_capacity(cap);
     let mut normals = Vec::with_capacity(if normal.is_some() { cap } else { 0 });
     let mut colors = Vec::with_capacity(if rgb.is_some() { cap } else { 0 });
@@ -138,14 +156,8 @@ pub fn parse_pcd_organised(path_for_errors: &Path, bytes: &[u8]) -> Result<Organ
         Data::Binary | Data::Compressed => {
             let owned;
             let data: &[u8] = if h.data == Data::Binary {
-                let need = n.checked_mul(record).filter(|&need| need <= body.len());
-                let need = need.ok_or_else(|| {
-                    Error::format(
-                        path,
-                        format!("PCD binary body holds {} of {n} points (truncated file?)", body.len() / record.max(1)),
-                    )
-                })?;
-                body.get(..need).unwrap_or_default()
+                // (the size is checked: the n records are in the body)
+                body.get(..n.saturating_mul(record)).unwrap_or_default()
             } else {
                 owned = decompress(path, body, n, record)?;
                 &owned
@@ -169,7 +181,104 @@ pub fn parse_pcd_organised(path_for_errors: &Path, bytes: &[u8]) -> Result<Organ
         }
     }
     let cloud = PointCloud { points, normals: normal.map(|_| normals), colors: rgb.map(|_| colors) };
-    Ok(OrganisedCloud { cloud, width: h.width, height: h.height })
+    Ok(Loaded { value: OrganisedCloud { cloud, width: h.width, height: h.height }, warnings })
+}
+
+/// Checks the body's size against the header before anything is allocated (see
+/// [`parse_pcd_checked`]); returns the warning for bytes after the body.
+///
+/// # Errors
+/// [`Error::Format`] naming the file, the header's `POINTS` (and for `binary_compressed` the
+/// body's size words) and the sizes that do not agree.
+fn check_body_size(path: &Path, h: &Header, body: &[u8]) -> Result<Option<String>> {
+    let (n, record) = (h.points, h.record_size);
+    let have = body.len();
+    let grid = if h.height > 1 { format!(" (WIDTH {} × HEIGHT {})", h.width, h.height) } else { String::new() };
+    let extra = |used: usize, what: &str| {
+        (have > used).then(|| {
+            format!(
+                "{}: {} bytes after the {what} the PCD header declares (POINTS {n}{grid}) were ignored",
+                path.display(),
+                have - used
+            )
+        })
+    };
+    match h.data {
+        Data::Ascii => {
+            let ntok = h.token_field.len();
+            let need = (n as u128 * ntok as u128 * 2).saturating_sub(1);
+            if need > have as u128 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD header POINTS {n}{grid}: {n} lines of {ntok} values need at least {need} characters, \
+                         but the file has {have} after its header ({} points at most): the count is wrong or the \
+                         file is truncated",
+                        (have + 1) / (2 * ntok).max(1)
+                    ),
+                ));
+            }
+            Ok(None)
+        }
+        Data::Binary => {
+            let need = n as u128 * record as u128;
+            if need > have as u128 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD header POINTS {n}{grid} needs {need} bytes of binary body ({record}-byte records), \
+                         but the file has {have} after its header: it holds {} of {n} points (truncated file, or a \
+                         wrong POINTS)",
+                        have / record.max(1)
+                    ),
+                ));
+            }
+            Ok(extra(n * record, "records"))
+        }
+        Data::Compressed => {
+            let word = |at: usize| body.get(at..at + 4).and_then(|b| b.try_into().ok()).map(u32::from_le_bytes);
+            let (Some(packed), Some(unpacked)) = (word(0), word(4)) else {
+                return Err(Error::format(
+                    path,
+                    format!("PCD binary_compressed body ({have} bytes) is shorter than its 8-byte size header"),
+                ));
+            };
+            let (packed, unpacked) = (packed as usize, unpacked as usize);
+            let need = n as u128 * record as u128;
+            if need != unpacked as u128 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD binary_compressed: the body's uncompressed size (bytes 4-7) is {unpacked} bytes, but the \
+                         header's POINTS {n}{grid} × {record}-byte records is {need}: the header or the body is wrong"
+                    ),
+                ));
+            }
+            if packed > have - 8 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD binary_compressed: {packed} compressed bytes announced (bytes 0-3), {} present (truncated \
+                         file?)",
+                        have - 8
+                    ),
+                ));
+            }
+            // an LZF back-reference (3 bytes) expands to at most 264 bytes
+            if unpacked / 88 > packed + 1 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD binary_compressed: {packed} compressed bytes cannot expand to the {unpacked} bytes of \
+                         POINTS {n}{grid} (LZF expands at most 88 times)"
+                    ),
+                ));
+            }
+            // bytes after the compressed data are not warned about: PCL's own writer leaves ~3.9 KB
+            // there (every binary_compressed file of PCL's in shared/data)
+            Ok(None)
+        }
+    }
 }
 
 /// Writes a cloud as PCD v0.7: `x y z`, `normal_x normal_y normal_z` when present, `rgb` (packed,
@@ -246,36 +355,16 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, encoding: PcdEncoding) -> Resu
     write_atomic(path, &out)
 }
 
-/// Decompresses a `binary_compressed` body to exactly `n × record` bytes.
+/// Decompresses a `binary_compressed` body to exactly `n × record` bytes (its sizes checked by
+/// [`check_body_size`]).
 fn decompress(path: &Path, body: &[u8], n: usize, record: usize) -> Result<Vec<u8>> {
     let word = |at: usize| body.get(at..at + 4).and_then(|b| b.try_into().ok()).map(u32::from_le_bytes);
-    let (Some(packed), Some(unpacked)) = (word(0), word(4)) else {
-        return Err(Error::format(path, "PCD binary_compressed body is shorter than its 8-byte size header"));
-    };
-    let (packed, unpacked) = (packed as usize, unpacked as usize);
-    let expected = n.checked_mul(record);
-    if expected != Some(unpacked) {
-        return Err(Error::format(
-            path,
-            format!("PCD binary_compressed: uncompressed size {unpacked} bytes, but POINTS {n} × {record} bytes"),
-        ));
-    }
+    let packed = word(0).unwrap_or_default() as usize;
+    let unpacked = n.saturating_mul(record);
     if unpacked == 0 {
         return Ok(Vec::new());
     }
-    let data = body.get(8..).and_then(|b| b.get(..packed)).ok_or_else(|| {
-        Error::format(
-            path,
-            format!(
-                "PCD binary_compressed: {packed} compressed bytes announced, {} present",
-                body.len().saturating_sub(8)
-            ),
-        )
-    })?;
-    // An LZF back-reference (3 bytes) expands to at most 264 bytes.
-    if unpacked / 88 > packed + 1 {
-        return Err(Error::format(path, format!("PCD binary_compressed: {packed} bytes cannot expand to {unpacked}")));
-    }
+    let data = body.get(8..).and_then(|b| b.get(..packed)).unwrap_or_default();
     let out =
         lzf::decompress(data, unpacked).map_err(|e| Error::format(path, format!("PCD binary_compressed: LZF: {e}")))?;
     if out.len() != unpacked {
@@ -393,20 +482,73 @@ mod tests {
         let ascii = head.replace("binary", "ascii");
         let err = format_err(format!("{ascii}1 2 3\n4 x 6\n").as_bytes());
         assert!(err.contains("line 11") && err.contains("`x`"), "{err}");
-        assert!(format_err(format!("{ascii}1 2 3\n").as_bytes()).contains("1 of 2"));
+        let err = format_err(format!("{ascii}1 2 3\n").as_bytes());
+        assert!(
+            err.contains("POINTS 2: 2 lines of 3 values need at least 11 characters") && err.contains("has 6"),
+            "{err}"
+        );
+        assert!(format_err(format!("{ascii}1 2 3\n         \n").as_bytes()).contains("1 of 2"));
         assert!(format_err(format!("{ascii}1 2 3\n4 5 6\n7 8 9\n").as_bytes()).contains("line 12"));
-        assert!(format_err(format!("{ascii}1 2 3\n4 5\n").as_bytes()).contains("2 values, expected 3"));
+        assert!(format_err(format!("{ascii}1 2 3\n4 5   \n").as_bytes()).contains("2 values, expected 3"));
         assert!(format_err(ascii.replace("POINTS 2", "POINTS 3").as_bytes()).contains("POINTS 3"));
         assert!(format_err(ascii.replace(" z", " w").as_bytes()).contains("`z`"));
         assert!(format_err(ascii.replace("SIZE 4 4 4", "SIZE 4 4 3").as_bytes()).contains("`z`"));
         assert!(format_err(ascii.replace("TYPE F F F", "TYPE F F").as_bytes()).contains("TYPE has 2"));
         assert!(format_err(ascii.replace("WIDTH", "WIDE").as_bytes()).contains("header line 6"));
         let huge = head.replace(" 2\n", " 1000000000000000\n");
-        assert!(format_err(format!("{huge}0123456789ab").as_bytes()).contains("truncated"));
+        let err = format_err(format!("{huge}0123456789ab").as_bytes());
+        assert!(
+            err.contains("POINTS 1000000000000000 needs 12000000000000000 bytes") && err.contains("truncated"),
+            "{err}"
+        );
         let huge = huge.replace("binary", "binary_compressed");
-        assert!(format_err(&compressed_file(&huge, &[0; 12], &[11; 13])).contains("uncompressed size"));
+        let err = format_err(&compressed_file(&huge, &[0; 12], &[11; 13]));
+        assert!(
+            err.contains("uncompressed size (bytes 4-7) is 12 bytes") && err.contains("12000000000000000"),
+            "{err}"
+        );
+        // compressed: the sizes against each other and the file, before anything is decompressed
+        let packed = head.replace("binary", "binary_compressed");
+        let mut lie = compressed_file(&packed, &[0; 24], &[11; 13]);
+        lie[packed.len()..packed.len() + 4].copy_from_slice(&2_000_000_000u32.to_le_bytes());
+        let err = format_err(&lie);
+        assert!(err.contains("2000000000 compressed bytes announced (bytes 0-3), 13 present"), "{err}");
+        let grid = packed
+            .replace("WIDTH 2", "WIDTH 100000")
+            .replace("HEIGHT 1", "HEIGHT 1000")
+            .replace("POINTS 2", "POINTS 100000000");
+        let mut expands = compressed_file(&grid, &[], &[11; 13]);
+        expands[grid.len() + 4..grid.len() + 8].copy_from_slice(&1_200_000_000u32.to_le_bytes());
+        let err = format_err(&expands);
+        let want = "13 compressed bytes cannot expand to the 1200000000 bytes of POINTS 100000000 (WIDTH 100000 × HEIGHT 1000)";
+        assert!(err.contains(want), "{err}");
         let huge = ascii.replace("COUNT 1 1 1", "COUNT 1 1 1000000000000");
         assert!(format_err(huge.as_bytes()).contains("COUNT"));
+    }
+
+    /// Bytes after a binary body's records are ignored with a warning naming the file and the
+    /// count; after binary_compressed data silently.
+    #[test]
+    fn bytes_after_the_body_warn() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("b.pcd");
+        write_pcd(&path, &sample_cloud(5), PcdEncoding::Binary).expect("write");
+        let mut bytes = std::fs::read(&path).expect("read");
+        assert!(parse_pcd_checked(Path::new("/d/b.pcd"), &bytes).expect("parse").warnings.is_empty());
+        bytes.extend([7u8; 5]);
+        let loaded = parse_pcd_checked(Path::new("/d/b.pcd"), &bytes).expect("parse");
+        assert_eq!(loaded.value.cloud, read_pcd_organised(&path).expect("read").cloud);
+        assert_eq!(
+            loaded.warnings,
+            vec!["/d/b.pcd: 5 bytes after the records the PCD header declares (POINTS 5) were ignored"]
+        );
+        // after compressed data: usual (PCL's writer leaves some), no warning
+        let header = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 2\nHEIGHT 2\nDATA binary_compressed\n";
+        let data: Vec<u8> = (0..48u8).collect();
+        let mut file = compressed_file(header, &data, &lzf_literals(&data));
+        file.extend([0u8; 3900]);
+        let loaded = parse_pcd_checked(Path::new("/d/c.pcd"), &file).expect("parse");
+        assert_eq!((loaded.value.cloud.len(), loaded.warnings.len()), (4, 0));
     }
 
     #[test]

@@ -12,8 +12,8 @@ use nalgebra::{Point3, Vector3};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::io::ply_header::{Element, Format, Header, Kind, Scalar, parse_header, walk_body};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::ply_header::{Element, Format, Header, Kind, Scalar, parse_header, scalar_size, walk_body};
+use crate::io::{Loaded, read_bytes, write_atomic};
 use crate::mesh::TriMesh;
 
 /// Body encoding of a written PLY file.
@@ -27,7 +27,9 @@ pub enum PlyEncoding {
     BinaryBigEndian,
 }
 
-/// Reads a PLY point cloud: positions, and normals and colors when the file has them.
+/// Reads a PLY point cloud: positions, and normals and colors when the file has them; every point
+/// as stored (non-finite ones too: [`crate::io::mesh::read_cloud_checked`] drops them, with a
+/// warning).
 ///
 /// # Errors
 /// [`Error::Io`] when the file cannot be read; [`Error::Format`] naming the file (and the line or
@@ -36,12 +38,26 @@ pub fn read_ply(path: &Path) -> Result<PointCloud> {
     parse_ply(path, &read_bytes(path)?)
 }
 
-/// Parses PLY bytes into a point cloud; `path_for_errors` is only used in error messages.
+/// Parses PLY bytes into a point cloud; `path_for_errors` is only used in error messages. The
+/// warnings of [`parse_ply_checked`] are not returned.
 ///
 /// # Errors
-/// [`Error::Format`] for a malformed header or body (truncated, wrong counts, bad tokens, missing
-/// `x`/`y`/`z`).
+/// As [`parse_ply_checked`].
 pub fn parse_ply(path_for_errors: &Path, bytes: &[u8]) -> Result<PointCloud> {
+    parse_ply_checked(path_for_errors, bytes).map(|loaded| loaded.value)
+}
+
+/// Parses PLY bytes into a point cloud (every point as stored), with a warning naming the file
+/// when bytes follow the records the header declares (they are ignored).
+///
+/// Before anything is allocated, the header's element counts are checked against the bytes after
+/// the header ([`Header::check_counts_fit`]); a binary body whose coordinates read as garbage in
+/// the declared byte order but as numbers in the other one is refused (a wrong `format` line).
+///
+/// # Errors
+/// [`Error::Format`] for a malformed header or body (counts that do not fit the file, truncated,
+/// bad tokens, missing `x`/`y`/`z`, the byte order the header declares probably wrong).
+pub fn parse_ply_checked(path_for_errors: &Path, bytes: &[u8]) -> Result<Loaded<PointCloud>> {
     let path = path_for_errors;
     let header = parse_header(path, bytes)?;
     let vi = header.element("vertex").ok_or_else(|| Error::format(path, "PLY file has no `vertex` element"))?;
@@ -50,6 +66,8 @@ pub fn parse_ply(path_for_errors: &Path, bytes: &[u8]) -> Result<PointCloud> {
     for (slot, name) in ["x", "y", "z"].into_iter().enumerate() {
         slots.push((scalar_prop(path, vertex, &[name])?, slot));
     }
+    header.check_counts_fit(path, bytes.len().saturating_sub(header.body_offset))?;
+    check_byte_order(path, &header, bytes, vi, [slots[0].0, slots[1].0, slots[2].0])?;
     let normal_names: [&[&str]; 3] = [&["nx", "normal_x"], &["ny", "normal_y"], &["nz", "normal_z"]];
     let has_normals = optional_triple(vertex, normal_names, &mut slots, 3);
     let color_names: [&[&str]; 3] = [&["red", "r"], &["green", "g"], &["blue", "b"]];
@@ -66,7 +84,7 @@ pub fn parse_ply(path_for_errors: &Path, bytes: &[u8]) -> Result<PointCloud> {
     let mut points = Vec::with_capacity(cap);
     let mut normals = if has_normals { Vec::with_capacity(cap) } else { Vec::new() };
     let mut colors = if has_colors { Vec::with_capacity(cap) } else { Vec::new() };
-    walk_body(path, &header, bytes, vi, &slots, None, |v, _| {
+    let used = walk_body(path, &header, bytes, vi, &slots, None, |v, _| {
         points.push(Point3::new(v[0] as f32, v[1] as f32, v[2] as f32));
         if has_normals {
             normals.push(Vector3::new(v[3] as f32, v[4] as f32, v[5] as f32));
@@ -77,7 +95,91 @@ pub fn parse_ply(path_for_errors: &Path, bytes: &[u8]) -> Result<PointCloud> {
         }
         Ok(())
     })?;
-    Ok(PointCloud { points, normals: has_normals.then_some(normals), colors: has_colors.then_some(colors) })
+    let cloud = PointCloud { points, normals: has_normals.then_some(normals), colors: has_colors.then_some(colors) };
+    Ok(Loaded { value: cloud, warnings: trailing_bytes(path, &header, bytes.len(), used).into_iter().collect() })
+}
+
+/// The warning for bytes after the binary records the header declares, naming the file, the
+/// counts and the bytes left over.
+fn trailing_bytes(path: &Path, header: &Header, file_len: usize, used: usize) -> Option<String> {
+    let extra = file_len.saturating_sub(header.body_offset).saturating_sub(used);
+    if header.format == Format::Ascii || extra == 0 {
+        return None;
+    }
+    let counts: Vec<String> = header.elements.iter().map(|e| format!("`element {} {}`", e.name, e.count)).collect();
+    Some(format!(
+        "{}: {extra} bytes after the records the PLY header declares ({}) were ignored: a count in the header \
+         may be too small",
+        path.display(),
+        counts.join(", ")
+    ))
+}
+
+/// Whether a coordinate read from a binary body looks like garbage: finite, not zero, and beyond
+/// 1e12 or under 1e-30 in magnitude (what a float read in the wrong byte order usually is).
+fn implausible(v: f64) -> bool {
+    v.is_finite() && v != 0.0 && !(1e-30..=1e12).contains(&v.abs())
+}
+
+/// Refuses a binary body read in the wrong byte order: up to 1024 vertices, evenly spread, are
+/// decoded both ways; when more than half of them have an implausible coordinate ([`implausible`])
+/// as declared and at most a tenth in the other byte order, the header's `format` line is
+/// probably wrong. Only float coordinates in fixed-size records are checked (the usual layout);
+/// an element with lists before the vertices leaves the check out.
+fn check_byte_order(path: &Path, header: &Header, bytes: &[u8], vi: usize, xyz: [usize; 3]) -> Result<()> {
+    if header.format == Format::Ascii {
+        return Ok(());
+    }
+    let vertex = &header.elements[vi];
+    let Some(stride) = vertex.fixed_size() else { return Ok(()) };
+    let mut start = header.body_offset;
+    for e in header.elements[..vi].iter().filter(|e| !e.props.is_empty()) {
+        let Some(size) = e.fixed_size().and_then(|s| usize::try_from(e.count).ok()?.checked_mul(s)) else {
+            return Ok(());
+        };
+        start = start.saturating_add(size);
+    }
+    let mut fields = [(0usize, Scalar::F32); 3];
+    for (k, &pi) in xyz.iter().enumerate() {
+        let Kind::Scalar(s) = vertex.props[pi].kind else { return Ok(()) };
+        if !s.is_float() {
+            return Ok(());
+        }
+        let offset: usize = vertex.props[..pi].iter().map(|p| scalar_size(p.kind)).sum();
+        fields[k] = (offset, s);
+    }
+    let n = usize::try_from(vertex.count).unwrap_or(usize::MAX).min(bytes.len().saturating_sub(start) / stride);
+    let samples = n.min(1024);
+    let declared_be = header.format == Format::BinaryBigEndian;
+    let (mut bad_declared, mut bad_other, mut example) = (0usize, 0usize, None);
+    for k in 0..samples {
+        let i = k * n / samples;
+        let Some(record) = bytes.get(start + i * stride..).and_then(|b| b.get(..stride)) else { break };
+        let read = |be: bool| fields.map(|(off, s)| record.get(off..).and_then(|b| s.decode(b, be)).unwrap_or(0.0));
+        let (declared, other) = (read(declared_be), read(!declared_be));
+        if declared.iter().any(|&v| implausible(v)) {
+            bad_declared += 1;
+            example = example.or(Some((i, declared)));
+        }
+        bad_other += usize::from(other.iter().any(|&v| implausible(v)));
+    }
+    if samples == 0 || 2 * bad_declared <= samples || 10 * bad_other > samples {
+        return Ok(());
+    }
+    let (i, v) = example.unwrap_or_default();
+    let other = if declared_be { "binary_little_endian" } else { "binary_big_endian" };
+    Err(Error::format(
+        path,
+        format!(
+            "PLY header says `format {}`, but read that way {bad_declared} of {samples} sampled vertices have \
+             implausible coordinates (vertex {i}: x {:.3e}, y {:.3e}, z {:.3e}), and in the other byte order {bad_other} do: \
+             the header's format is probably wrong (`format {other} 1.0`?)",
+            header.format_name(),
+            v[0],
+            v[1],
+            v[2]
+        ),
+    ))
 }
 
 /// Reads a PLY triangle mesh: `vertex` x, y, z (kept in f64) and the `face` element's
@@ -98,6 +200,7 @@ pub fn read_ply_mesh(path: &Path) -> Result<TriMesh> {
 pub fn parse_ply_mesh(path_for_errors: &Path, bytes: &[u8]) -> Result<TriMesh> {
     let path = path_for_errors;
     let header = parse_header(path, bytes)?;
+    header.check_counts_fit(path, bytes.len().saturating_sub(header.body_offset))?;
     let vi = header.element("vertex").ok_or_else(|| Error::format(path, "PLY file has no `vertex` element"))?;
     let fi = header.element("face").ok_or_else(|| Error::format(path, "PLY mesh has no `face` element"))?;
     let vertex = &header.elements[vi];
@@ -386,32 +489,98 @@ mod tests {
         let path = dir.path().join("t.ply");
         write_ply(&path, &sample_cloud(10, 2), PlyEncoding::BinaryLittleEndian).expect("write");
         let bytes = std::fs::read(&path).expect("read");
+        // the count against the body, before anything is read: 10 records of 27 bytes
         let err = format_err(&bytes[..bytes.len() - 5]);
-        assert!(err.contains("/data/scan.ply") && err.contains("truncated") && err.contains("record 9"), "{err}");
+        let want =
+            "header line 4: `element vertex 10` needs 270 bytes of binary_little_endian body (27 bytes a record)";
+        assert!(err.contains("/data/scan.ply") && err.contains(want) && err.contains("has 265 bytes"), "{err}");
         let head = "ply\nformat ascii 1.0\nelement vertex 1000\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+        // ascii: at least a digit and a separator a value, the last newline optional
         let err = format_err(format!("{head}1 2 3\n4 5 6\n").as_bytes());
-        assert!(err.contains("record 2") && err.contains("1000 records"), "{err}");
+        assert!(
+            err.contains("`element vertex 1000` needs at least 5999 characters") && err.contains("has 12 bytes"),
+            "{err}"
+        );
+        let body = "1.5 2.5 3.5\n".repeat(999);
+        let err = format_err(format!("{head}{body}").as_bytes());
+        assert!(err.contains("record 999") && err.contains("1000 records"), "{err}");
         let err = format_err(format!("{}1 2 3\n4 5 6\n", head.replace("1000", "1")).as_bytes());
         assert!(err.contains("line 9") && err.contains("after the last element"), "{err}");
+        let head = head.replace("1000", "2");
         let err = format_err(format!("{head}1 2 3\n4 five 6\n").as_bytes());
         assert!(err.contains("line 9") && err.contains("`five`"), "{err}");
-        let err = format_err(format!("{head}1 2 3\n4 5\n").as_bytes());
+        let err = format_err(format!("{head}1 2 3\n4 5   \n").as_bytes());
         assert!(err.contains("line 9") && err.contains("`z`"), "{err}");
         let err = format_err(head.replace("property float y\n", "").as_bytes());
         assert!(err.contains("no property `y`"), "{err}");
         let err = format_err(head.replace("float y", "flaot y").as_bytes());
         assert!(err.contains("header line 5") && err.contains("flaot"), "{err}");
-        let huge = head.replace("1000", "1000000000000000").replace("ascii", "binary_little_endian");
-        assert!(format_err(format!("{huge}0123456789ab").as_bytes()).contains("truncated"));
-        let huge = format!("{}0 0 0\n", head.replace("1000", "1000000000000000"));
-        assert!(format_err(huge.as_bytes()).contains("record 1"));
+        let huge = head.replace("vertex 2", "vertex 1000000000000000").replace("ascii", "binary_little_endian");
+        let err = format_err(format!("{huge}0123456789ab").as_bytes());
+        assert!(err.contains("needs 12000000000000000 bytes") && err.contains("has 12 bytes"), "{err}");
+        let huge = format!("{}0 0 0\n", head.replace("vertex 2", "vertex 1000000000000000"));
+        assert!(format_err(huge.as_bytes()).contains("needs at least 5999999999999999 characters"));
+        // a face count that cannot fit after the vertex: named with its line and what the vertex took
         let face = "element face 99999999999999999\nproperty list uint int vertex_indices\nend_header";
-        let huge = head.replace("vertex 1000", "vertex 1").replace("ascii", "binary_big_endian");
-        let huge = huge.replace("end_header", face);
-        let mut huge = format!("{huge}0123456789ab").into_bytes();
+        let huge = head.replace("vertex 2", "vertex 1").replace("ascii", "binary_big_endian");
+        let mut huge = format!("{}0123456789ab", huge.replace("end_header", face)).into_bytes();
         huge.extend([0x7f, 0xff, 0xff, 0xff]);
         let err = format_err(&huge);
-        assert!(err.contains("element `face` record 0"), "{err}");
+        assert!(err.contains("header line 7: `element face 99999999999999999` needs at least"), "{err}");
+        assert!(err.contains("(at least 4 bytes a record, after 12 for the elements before it)"), "{err}");
+        // the counts fit, a list's length does not: the record is named
+        let face = "element face 1\nproperty list uint int vertex_indices\nend_header";
+        let mut short = (head.replace("vertex 2", "vertex 1").replace("ascii", "binary_big_endian"))
+            .replace("end_header", face)
+            .into_bytes();
+        short.extend([0u8; 12]);
+        short.extend(1000u32.to_be_bytes());
+        let err = format_err(&short);
+        assert!(err.contains("element `face` record 0") && err.contains("truncated"), "{err}");
+    }
+
+    /// Bytes after the body the header declares: kept out of the cloud, with a warning naming the
+    /// file and the count; a body in the other byte order than the header's: refused.
+    #[test]
+    fn trailing_bytes_warn_and_a_wrong_byte_order_is_refused() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("t.ply");
+        let points: Vec<Point3<f32>> =
+            (0..200).map(|i| Point3::new(0.001 * i as f32, -0.25 + 0.002 * i as f32, 0.4 + 1e-4 * i as f32)).collect();
+        let cloud = PointCloud::from_points(points);
+        for (enc, other) in [
+            (PlyEncoding::BinaryLittleEndian, "binary_big_endian"),
+            (PlyEncoding::BinaryBigEndian, "binary_little_endian"),
+        ] {
+            write_ply(&path, &cloud, enc).expect("write");
+            let mut bytes = std::fs::read(&path).expect("read");
+            let clean = parse_ply_checked(Path::new("/d/t.ply"), &bytes).expect("parse");
+            assert_eq!((&clean.value, clean.warnings.len()), (&cloud, 0), "{enc:?}");
+            bytes.extend([0u8; 37]);
+            let longer = parse_ply_checked(Path::new("/d/t.ply"), &bytes).expect("parse");
+            assert_eq!(longer.value, cloud, "{enc:?}");
+            assert_eq!(
+                longer.warnings,
+                vec![
+                    "/d/t.ply: 37 bytes after the records the PLY header declares (`element vertex 200`) were \
+                     ignored: a count in the header may be too small"
+                        .to_string()
+                ]
+            );
+            // the header's format line swapped: the same bytes read the other way
+            let text = String::from_utf8_lossy(&bytes[..60]).into_owned();
+            let declared = if other == "binary_big_endian" { "binary_little_endian" } else { "binary_big_endian" };
+            let swapped = [text.replacen(declared, other, 1).as_bytes(), &bytes[60..]].concat();
+            assert_eq!(swapped.len(), bytes.len() + other.len() - declared.len());
+            let err = format_err(&swapped);
+            assert!(err.contains(&format!("says `format {other}`")), "{err}");
+            assert!(err.contains("the header's format is probably wrong") && err.contains(declared), "{err}");
+            assert!(err.contains(" of 200 sampled vertices") && err.contains("in the other byte order 0 do"), "{err}");
+        }
+        // garbage in both byte orders (random bits) is not called a wrong format: it is read as is
+        let noisy = sample_cloud(300, 9);
+        write_ply(&path, &noisy, PlyEncoding::BinaryLittleEndian).expect("write");
+        assert_eq!(bits(&read_ply(&path).expect("read")), bits(&noisy));
     }
 
     #[test]

@@ -107,6 +107,8 @@ pub(crate) struct Element {
     pub(crate) name: String,
     pub(crate) count: u64,
     pub(crate) props: Vec<Property>,
+    /// 1-based header line of its `element` line.
+    pub(crate) line: usize,
 }
 
 impl Element {
@@ -123,7 +125,8 @@ impl Element {
         })
     }
 
-    /// A lower bound on the size of one record (bytes in binary; characters in ascii).
+    /// A lower bound on the size of one record (bytes in binary; characters in ascii: one digit
+    /// and one separator a property).
     pub(crate) fn min_record_bytes(&self, ascii: bool) -> usize {
         let binary: usize = self
             .props
@@ -160,6 +163,57 @@ impl Header {
     /// Index of the element called `name`.
     pub(crate) fn element(&self, name: &str) -> Option<usize> {
         self.elements.iter().position(|e| e.name == name)
+    }
+
+    /// The header's name of the encoding (`ascii`, `binary_little_endian`, `binary_big_endian`).
+    pub(crate) fn format_name(&self) -> &'static str {
+        match self.format {
+            Format::Ascii => "ascii",
+            Format::BinaryLittleEndian => "binary_little_endian",
+            Format::BinaryBigEndian => "binary_big_endian",
+        }
+    }
+
+    /// Checks the header's element counts against the `body_len` bytes after the header, before
+    /// anything is allocated for them: every record needs at least
+    /// [`Element::min_record_bytes`] (exact for a binary element without lists), so the counts
+    /// together must fit the body. Elements without properties take no room.
+    ///
+    /// # Errors
+    /// [`Error::Format`] naming the file, the first `element` line whose records no longer fit,
+    /// the bytes they need and the bytes there are.
+    pub(crate) fn check_counts_fit(&self, path: &Path, body_len: usize) -> Result<()> {
+        let ascii = self.format == Format::Ascii;
+        let mut before: u128 = 0;
+        for e in self.elements.iter().filter(|e| !e.props.is_empty()) {
+            let per = e.min_record_bytes(ascii) as u128;
+            let need = u128::from(e.count) * per;
+            // the last ascii line may lack its newline
+            let slack = u128::from(ascii && e.count > 0);
+            if before + need > body_len as u128 + slack {
+                let exact = !ascii && e.fixed_size().is_some();
+                let unit = if ascii { "characters" } else { "bytes" };
+                let at_least = if exact { "" } else { "at least " };
+                let per_text =
+                    if exact { format!("{per} bytes a record") } else { format!("at least {per} {unit} a record") };
+                let after =
+                    if before > 0 { format!(", after {before} for the elements before it") } else { String::new() };
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PLY header line {}: `element {} {}` needs {at_least}{} {unit} of {} body ({per_text}{after}), \
+                         but the file has {body_len} bytes after its header: the count is wrong or the file is truncated",
+                        e.line,
+                        e.name,
+                        e.count,
+                        need - slack,
+                        self.format_name(),
+                    ),
+                ));
+            }
+            before += need;
+        }
+        Ok(())
     }
 }
 
@@ -205,7 +259,7 @@ pub(crate) fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     return Err(bad("expected `element <name> <count>`".into()));
                 };
                 let count = count.parse::<u64>().map_err(|_| bad(format!("bad element count `{count}`")))?;
-                elements.push(Element { name: name.to_owned(), count, props: Vec::new() });
+                elements.push(Element { name: name.to_owned(), count, props: Vec::new(), line: line_no });
             }
             "property" => {
                 let Some(element) = elements.last_mut() else {
@@ -240,6 +294,8 @@ pub(crate) fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
 /// `(property index, slot)` are decoded into a value array and `visit(values, None)` is called. For
 /// each record of the element named in `list` as `(element index, property index)`, that list is
 /// decoded and `visit(&[], Some(items))` is called. Every other element and property is skipped.
+/// Returns how many bytes of the body the records took (binary; the whole body for ascii, where
+/// anything after the last record is an error).
 pub(crate) fn walk_body(
     path: &Path,
     header: &Header,
@@ -248,7 +304,7 @@ pub(crate) fn walk_body(
     slots: &[(usize, usize)],
     list: Option<(usize, usize)>,
     mut visit: impl FnMut(&[f64], Option<&[f64]>) -> Result<()>,
-) -> Result<()> {
+) -> Result<usize> {
     let body = bytes.get(header.body_offset..).unwrap_or_default();
     let mut values = vec![0.0f64; slots.iter().map(|s| s.1 + 1).max().unwrap_or(0)];
     let mut items: Vec<f64> = Vec::new();
@@ -388,10 +444,11 @@ pub(crate) fn walk_body(
             format!("PLY line {line_no}: data after the last element (header counts too small?)"),
         ));
     }
-    Ok(())
+    Ok(if header.format == Format::Ascii { body.len() } else { pos })
 }
 
-fn scalar_size(kind: Kind) -> usize {
+/// Size in bytes of a scalar property in a binary record (0 for a list).
+pub(crate) fn scalar_size(kind: Kind) -> usize {
     match kind {
         Kind::Scalar(s) => s.size(),
         Kind::List { .. } => 0,

@@ -107,6 +107,9 @@ pub struct LoadedView {
     /// The color image, when the view has one ([`load_view_every_nth`]: its every `step`-th row
     /// and column).
     pub color: Option<ColorImage>,
+    /// What loading the view's files dropped or ignored (a point file's non-finite points, bytes
+    /// after its body), each naming the file.
+    pub warnings: Vec<String>,
 }
 
 impl Scan {
@@ -584,10 +587,11 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
             let (camera, depth_image) = read_depth_every_nth(scan, depth, step)?;
             let color = color.as_deref().map(|c| read_color_every_nth(scan, camera, c, step)).transpose()?;
             let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
-            Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color })
+            Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color, warnings: Vec::new() })
         }
         ViewData::Points { points } => {
-            let mut cloud_camera = crate::io::mesh::read_cloud(&scan.dir.join(points))?;
+            let crate::io::Loaded { value: mut cloud_camera, warnings } =
+                crate::io::mesh::read_cloud_checked(&scan.dir.join(points))?;
             if let Some(camera) = &scan.camera {
                 let keep: Vec<usize> = (0..cloud_camera.len())
                     .filter(|&i| {
@@ -597,7 +601,7 @@ pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>,
                     .collect();
                 cloud_camera = cloud_camera.select(&keep);
             }
-            Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None })
+            Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None, warnings })
         }
     }
 }

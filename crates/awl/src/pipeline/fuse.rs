@@ -142,7 +142,13 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     if config.roi.radius_m.is_some() && focus.is_none() {
         warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
     }
-    let (registered, to_merge) = registered_views(&preparer, config, &mut stages, progress)?;
+    let (registered, to_merge) = match registered_views(&preparer, config, &mut stages, progress) {
+        Ok(registered) => registered,
+        // every view emptied by the region-of-interest crop: one error naming the key and the focus
+        Err(e) => return Err(preparer.roi_error().unwrap_or(e)),
+    };
+    // what reading the views' files dropped, after what reading the manifest fixed
+    warnings.extend(preparer.load_warnings());
     let skipped = registered.reports.iter().filter(|r| r.status == ViewStatus::Skipped);
     warnings.extend(skipped.map(|r| format!("view {} skipped: {}", r.index, r.reason)));
     if registered.reports.iter().filter(|r| r.status != ViewStatus::Skipped).count() == 1 {

@@ -11,6 +11,8 @@
 //! points, their normals packed: ~4 bytes a point instead of 27) and loads the view again for the
 //! merge: on a 12-view box, peak RSS 193 -> 134 MB in the same time (BENCHMARKS.md 64).
 
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
@@ -235,6 +237,18 @@ fn snap_plane_normals(view: PreparedView, params: &PlaneParams) -> Result<Prepar
     Ok(PreparedView { cloud, ..view })
 }
 
+/// What preparing the views noticed, by view index (so the views, prepared in parallel, report in
+/// view order).
+#[derive(Default)]
+struct Notes {
+    /// Each view's load warnings (a point file's non-finite points dropped, ...), from its first load.
+    warnings: BTreeMap<usize, Vec<String>>,
+    /// The views the region-of-interest crop left without points.
+    roi_emptied: BTreeSet<usize>,
+    /// The views that could not be prepared, and why.
+    failed: BTreeMap<usize, String>,
+}
+
 /// What the preparation of every view of a scan shares: the ray table, the grid of kept pixels,
 /// the region of interest.
 pub(crate) struct Preparer<'a> {
@@ -249,6 +263,7 @@ pub(crate) struct Preparer<'a> {
     roi: Option<(f64, Point3<f64>)>,
     /// The point the cameras look at (see [`focus_point`]), when a region of interest is asked for.
     pub focus: Option<Point3<f64>>,
+    notes: Mutex<Notes>,
 }
 
 impl<'a> Preparer<'a> {
@@ -262,7 +277,49 @@ impl<'a> Preparer<'a> {
         let roi = config.roi.radius_m.zip(focus);
         // held beside the registration's copies only when each view is merged as it registers
         let copies = if config.streams_views() { Copies::Both } else { Copies::Registration };
-        Self { scan, config, rays, grid, copies, roi, focus }
+        Self { scan, config, rays, grid, copies, roi, focus, notes: Mutex::default() }
+    }
+
+    fn note(&self, f: impl FnOnce(&mut Notes)) {
+        f(&mut self.notes.lock().unwrap_or_else(PoisonError::into_inner));
+    }
+
+    /// The views' load warnings (each naming its file), in view order.
+    pub(crate) fn load_warnings(&self) -> Vec<String> {
+        let notes = self.notes.lock().unwrap_or_else(PoisonError::into_inner);
+        notes.warnings.values().flatten().cloned().collect()
+    }
+
+    /// When no view could be prepared and the region-of-interest crop emptied some of them: one
+    /// error naming `roi.radius_m`, the focus point it used and the views, instead of one reason
+    /// per view; the other views' reasons follow.
+    pub(crate) fn roi_error(&self) -> Option<crate::Error> {
+        let notes = self.notes.lock().unwrap_or_else(PoisonError::into_inner);
+        let (radius, focus) = self.roi?;
+        if notes.roi_emptied.is_empty() || notes.failed.len() < self.len() {
+            return None;
+        }
+        let emptied: Vec<String> = notes.roi_emptied.iter().map(usize::to_string).collect();
+        let others: Vec<String> = (notes.failed.iter())
+            .filter(|(i, _)| !notes.roi_emptied.contains(i))
+            .map(|(i, reason)| format!("; view {i}: {reason}"))
+            .collect();
+        Some(crate::Error::invalid(
+            "scan",
+            format!(
+                "no usable view: the region-of-interest crop left no points in {} of {} views ({}): none is within \
+                 `roi.radius_m` = {radius} m of the focus point ({:.3}, {:.3}, {:.3}) m (world frame, where the views' \
+                 optical axes meet, from the recorded poses); raise `roi.radius_m` in the fuse config, or set it to \
+                 null (JSON) to crop nothing{}",
+                emptied.len(),
+                self.len(),
+                emptied.join(", "),
+                focus.x,
+                focus.y,
+                focus.z,
+                others.concat()
+            ),
+        ))
     }
 
     /// The number of views of the scan.
@@ -281,7 +338,13 @@ impl<'a> Preparer<'a> {
     /// [`Recipe`], for [`Preparer::measured`].
     pub(crate) fn view(&self, i: usize) -> (std::result::Result<PreparedView, String>, Tally) {
         let mut tally = Tally::default();
-        (self.prepare(i, self.copies, &mut tally), tally)
+        let view = self.prepare(i, self.copies, &mut tally);
+        if let Err(reason) = &view {
+            self.note(|n| {
+                n.failed.insert(i, reason.clone());
+            });
+        }
+        (view, tally)
     }
 
     /// View `i`'s measured points (camera frame): held, or read again by their recipe (the view
@@ -320,15 +383,24 @@ impl<'a> Preparer<'a> {
         let loaded = load_view_every_nth(self.scan, i, self.rays.as_deref(), self.config.pixel_step)
             .map_err(|e| e.to_string())?;
         // the points carry their colors: the color image is not kept
-        let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color } = loaded;
+        let LoadedView { world_from_camera: seed, cloud_camera: cloud, pixels, color, warnings } = loaded;
         drop(color);
+        if !warnings.is_empty() {
+            self.note(|n| {
+                n.warnings.entry(i).or_insert(warnings);
+            });
+        }
         let pixels = pixels.filter(|_| self.config.pixel_window > 0);
         let view = PreparedView { seed, cloud, pixels, measured: None };
         let n = view.cloud.len();
         tally[0] = Some((n, n, load_start.elapsed().as_secs_f64()));
         let mut view = non_empty(view, "the depth range crop").map_err(|e| e.to_string())?;
         if let Some((radius, focus)) = self.roi {
-            view = timed(1, tally, view, |v| within(v, radius, focus))?;
+            view = timed(1, tally, view, |v| within(v, radius, focus)).inspect_err(|_| {
+                self.note(|n| {
+                    n.roi_emptied.insert(i);
+                })
+            })?;
         }
         Ok(view)
     }
@@ -379,7 +451,16 @@ fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<Prepar
     if let Some(pixels) = v.pixels.as_mut() {
         retain_at(pixels, &keep);
     }
-    non_empty(v, "the region-of-interest crop")
+    if v.cloud.is_empty() {
+        return Err(crate::Error::invalid(
+            "view",
+            format!(
+                "no points within `roi.radius_m` = {radius} m of the focus point ({:.3}, {:.3}, {:.3}) m (world frame)",
+                focus.x, focus.y, focus.z
+            ),
+        ));
+    }
+    Ok(v)
 }
 
 #[cfg(test)]

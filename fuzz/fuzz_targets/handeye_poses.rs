@@ -1,0 +1,8 @@
+//! The hand-eye poses file (`awl-handeye/1`).
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let path = awl_fuzz::name("poses.json");
+    let _ = awl_fuzz::names_the_file(&path, awl::io::handeye::parse_poses(&path, data));
+});
