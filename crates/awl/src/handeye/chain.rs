@@ -128,7 +128,7 @@ fn perturbation(d: &[f64]) -> Isometry3<f64> {
 }
 
 /// The decoupled log of an isometry: rotation vector, then translation.
-fn log(iso: &Isometry3<f64>) -> Vector6<f64> {
+pub(crate) fn log(iso: &Isometry3<f64>) -> Vector6<f64> {
     let w = iso.rotation.scaled_axis();
     let t = iso.translation.vector;
     Vector6::new(w.x, w.y, w.z, t.x, t.y, t.z)
@@ -450,11 +450,8 @@ fn observed_sqrt(problem: &Problem<'_>, i: usize, twists: &[Vector6<f64>]) -> Op
     let m = problem.views[i].model_from_camera;
     let columns: Vec<Vector6<f64>> = (twists.iter())
         .map(|t| {
-            let exp = |h: f64| {
-                let d = t * h;
-                isometry_from_translation_rotvec(Vector3::new(d[3], d[4], d[5]), Vector3::new(d[0], d[1], d[2]))
-            };
-            (problem.view_residual_at(&p, i, &(exp(STEP) * m)) - problem.view_residual_at(&p, i, &(exp(-STEP) * m)))
+            let moved = |h: f64| perturbation((t * h).as_slice()) * m;
+            (problem.view_residual_at(&p, i, &moved(STEP)) - problem.view_residual_at(&p, i, &moved(-STEP)))
                 / (2.0 * STEP)
         })
         .collect();

@@ -289,9 +289,7 @@ pub fn refine_hand_eye(
     report.axis_angle_deg = axis_angle.to_degrees();
     if let Some(e) = &estimate {
         // the correction measured against the recorded hand-eye's stated uncertainty
-        let d = recorded.inverse() * e.ee_from_camera;
-        let w = d.rotation.scaled_axis();
-        let delta = nalgebra::Vector6::new(w.x, w.y, w.z, d.translation.x, d.translation.y, d.translation.z);
+        let delta = crate::handeye::chain::log(&(recorded.inverse() * e.ee_from_camera));
         let information = prior.covariance.try_inverse().unwrap_or_else(Matrix6::zeros);
         report.prior_sigmas = delta.dot(&(information * delta)).max(0.0).sqrt();
         if report.prior_sigmas > WRONG_PRIOR_SIGMAS {

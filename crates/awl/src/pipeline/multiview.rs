@@ -132,16 +132,6 @@ pub(super) fn settle(
             ))
         })
         });
-    if std::env::var_os("AWL_DEBUG_HOLD").is_some() {
-        let d = result.target_from_source * view.seed.inverse();
-        eprintln!(
-            "HOLD view {} seq correction rot {:?} deg, trans {:?}; held {:?}",
-            report.index,
-            (d.rotation.scaled_axis() * 57.3).as_slice(),
-            d.translation.vector.as_slice(),
-            result.unobserved
-        );
-    }
     match verdict {
         Ok(()) => {
             report.status = ViewStatus::Accepted;
@@ -298,12 +288,10 @@ pub(crate) fn register_views(views: &Views, config: &RegistrationConfig, voxel: 
             continue;
         }
         let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &confirmed)?;
-        {
-            poses[i] = settle(config, view, &result, &symmetries, &mut reports[i]);
-            if let Some(pose) = poses[i] {
-                model.add(&view.cloud.transformed(&pose))?;
-                merged.push(i);
-            }
+        poses[i] = settle(config, view, &result, &symmetries, &mut reports[i]);
+        if let Some(pose) = poses[i] {
+            model.add(&view.cloud.transformed(&pose))?;
+            merged.push(i);
         }
     }
     drop(model); // the sequential pass's targets: not needed by the refinements

@@ -21,8 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
 use super::solve::{
-    Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, hold, linearise, step_as_twist,
-    step_motion,
+    Hint, StepParams, System, Target, TargetIndex, hold, keeping, linearise, step_as_twist, step_motion, twist_as_step,
 };
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
@@ -115,6 +114,7 @@ impl IcpParams {
     /// [`Error::Invalid`] naming the field (`icp.<field>`).
     pub fn validate(&self) -> Result<()> {
         let positive: fn(f64) -> bool = |v| v.is_finite() && v > 0.0;
+        let fraction: fn(f64) -> bool = |v| (0.0..1.0).contains(&v);
         let at_least_zero: fn(f64) -> bool = |v| v.is_finite() && v >= 0.0;
         let checks = [
             ("kernel_scale_ratio", Some(self.kernel_scale_ratio), positive, "> 0"),
@@ -122,7 +122,7 @@ impl IcpParams {
             ("max_normal_angle_rad", self.max_normal_angle_rad, at_least_zero, ">= 0"),
             ("convergence_translation_m", Some(self.convergence_translation_m), at_least_zero, ">= 0"),
             ("convergence_rotation_rad", Some(self.convergence_rotation_rad), at_least_zero, ">= 0"),
-            ("unobserved_ratio", Some(self.unobserved_ratio).filter(|v| !(*v < 1.0)), at_least_zero, "in [0, 1)"),
+            ("unobserved_ratio", Some(self.unobserved_ratio), fraction, "in [0, 1)"),
         ];
         for (name, value, ok, range) in checks {
             if let Some(v) = value.filter(|&v| !ok(v)) {
@@ -316,7 +316,7 @@ fn centre_and_length(points: &[Point3<f64>]) -> (Vector3<f64>, f64) {
 }
 
 /// Solves the damped normal equations, with no component along the directions `held` projects
-/// out (a [`complement`]); `None` when the system is singular.
+/// out (a [`keeping`] projection); `None` when the system is singular.
 fn solve_step(sys: &System, held: Option<&Matrix6<f64>>) -> Option<Vector6<f64>> {
     let (h, g) = match held {
         Some(p) => hold(&sys.h, &sys.g, p),
@@ -341,6 +341,7 @@ fn spectrum(
     length: f64,
     ratio: f64,
     held: &[Unobserved],
+    held_constraints: &[Vector6<f64>],
     expected: &[Unobserved],
 ) -> (f64, f64, Vec<Unobserved>) {
     let eig = SymmetricEigen::new(sys.h);
@@ -352,11 +353,12 @@ fn spectrum(
     let conditioning = ratio_of(eig.eigenvalues.min());
     if !held.is_empty() {
         // the smallest eigenvalue over the steps that meet the held constraints
-        let p =
-            complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), centre, length)).collect::<Vec<_>>());
+        // (the projection's rank deficit: constraints that repeat others add none)
+        let p = keeping(held_constraints, centre, length);
+        let removed = (6.0 - p.trace()).round().max(0.0) as usize;
         let mut kept: Vec<f64> = SymmetricEigen::new(p * sys.h * p).eigenvalues.iter().copied().collect();
         kept.sort_by(f64::total_cmp);
-        return (conditioning, ratio_of(kept.get(held.len()).copied().unwrap_or(0.0)), held.to_vec());
+        return (conditioning, ratio_of(kept.get(removed).copied().unwrap_or(0.0)), held.to_vec());
     }
     let mut observed = f64::INFINITY;
     let mut unobserved = Vec::new();
@@ -372,10 +374,7 @@ fn spectrum(
     // too little to tell it apart from their noise
     for e in expected {
         let twist = Vector6::from(e.twist);
-        let omega = Vector3::new(twist[0], twist[1], twist[2]);
-        let v = Vector3::new(twist[3], twist[4], twist[5]) + omega.cross(centre);
-        let step = Vector6::new(omega.x * length, omega.y * length, omega.z * length, v.x, v.y, v.z);
-        let Some(u) = step.try_normalize(1e-12) else { continue };
+        let Some(u) = twist_as_step(&twist, centre, length).try_normalize(1e-12) else { continue };
         let weak = ratio_of(u.dot(&(sys.h * u)));
         if weak < EXPECTED_FACTOR * ratio && !unobserved.iter().any(|o| o.same_as(e)) {
             unobserved.push(Unobserved::describe(&twist, weak, centre, length));
@@ -399,7 +398,7 @@ fn run_level(
     k: usize,
     params: &IcpParams,
     mut t: Isometry3<f64>,
-    held: &[Unobserved],
+    held: &[Vector6<f64>],
 ) -> (Isometry3<f64>, LevelStats, Linearised) {
     let level = &params.levels[k];
     let (converged_m, converged_rad) = params.level_convergence(k);
@@ -430,9 +429,7 @@ fn run_level(
         iterations += 1;
         sys = Some(s);
         about = centre;
-        let held = (!held.is_empty()).then(|| {
-            complement(&held.iter().map(|u| constraint_on_steps(&u.constraint(), &centre, length)).collect::<Vec<_>>())
-        });
+        let held = (!held.is_empty()).then(|| keeping(held, &centre, length));
         let Some(delta) = (s.inliers >= 6).then(|| solve_step(&s, held.as_ref())).flatten() else { break };
         let (motion, moved_m, turned_rad) = step_motion(&delta, &centre, length);
         t = motion * t;
@@ -544,6 +541,7 @@ fn run_holding<'a>(
     let mut t = *init;
     let mut levels = Vec::new();
     let mut last = None;
+    let constraints: Vec<Vector6<f64>> = held.iter().map(Unobserved::constraint).collect();
     // A level's clouds and target index do not depend on the pose: the next level's are built
     // while this level iterates (two levels in memory at most).
     let build = |k: usize| -> Result<LevelData<'a>> {
@@ -556,7 +554,7 @@ fn run_holding<'a>(
     for k in 0..params.levels.len() {
         let Some(data) = next.take() else { break };
         let ((moved_to, stats, s), built) = rayon::join(
-            || run_level(&data, k, params, t, held),
+            || run_level(&data, k, params, t, &constraints),
             || (k + 1 < params.levels.len()).then(|| build(k + 1)).transpose(),
         );
         next = built?;
@@ -567,7 +565,7 @@ fn run_holding<'a>(
     let last = last.unwrap_or(Linearised { system: System::zero(), centre: Vector3::zeros(), length: 1.0 });
     let s = last.system;
     let (conditioning, observed_conditioning, unobserved) =
-        spectrum(&s, &last.centre, last.length, params.unobserved_ratio, held, expected);
+        spectrum(&s, &last.centre, last.length, params.unobserved_ratio, held, &constraints, expected);
     let fin = levels.last().copied().ok_or_else(|| Error::invalid("ICP parameters", "no levels"))?;
     Ok(IcpResult {
         target_from_source: t,
@@ -689,5 +687,11 @@ mod tests {
         }
         let params = IcpParams { max_normal_angle_rad: Some(f64::NAN), ..IcpParams::default() };
         assert!(params.validate().expect_err("NaN angle").to_string().contains("icp.max_normal_angle_rad"));
+        // a fraction of the largest eigenvalue: [0, 1)
+        for bad in [f64::NAN, -0.1, 1.0, 5.0] {
+            let params = IcpParams { unobserved_ratio: bad, ..IcpParams::default() };
+            assert!(params.validate().expect_err("ratio").to_string().contains("icp.unobserved_ratio"), "{bad}");
+        }
+        assert!(IcpParams { unobserved_ratio: 1e-3, ..IcpParams::default() }.validate().is_ok());
     }
 }

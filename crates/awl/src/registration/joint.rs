@@ -20,9 +20,7 @@ use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use super::icp::{IcpLevel, IcpParams, move_cloud, thin};
-use super::solve::{
-    Hint, StepParams, System, Target, TargetIndex, complement, constraint_on_steps, linearise, step_motion,
-};
+use super::solve::{Hint, StepParams, System, Target, TargetIndex, hold, keeping, linearise, step_motion};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample_cow};
@@ -172,13 +170,10 @@ fn run_level(
         // The held directions: each view's unknowns projected onto the steps that keep them.
         if held.iter().any(|t| !t.is_empty()) {
             let mut p = DMatrix::<f64>::identity(dim, dim);
-            for (v, twists) in held.iter().enumerate().filter(|(v, t)| *v < n && !t.is_empty()) {
-                let steps: Vec<Vector6<f64>> = twists.iter().map(|c| constraint_on_steps(c, &centre, length)).collect();
-                p.fixed_view_mut::<6, 6>(6 * v, 6 * v).copy_from(&complement(&steps));
+            for (v, constraints) in held.iter().enumerate().filter(|(v, c)| *v < n && !c.is_empty()) {
+                p.fixed_view_mut::<6, 6>(6 * v, 6 * v).copy_from(&keeping(constraints, &centre, length));
             }
-            let scale = (h.trace() / dim as f64).max(1e-12);
-            h = &p * &h * &p + (DMatrix::<f64>::identity(dim, dim) - &p) * scale;
-            g = &p * &g;
+            (h, g) = hold(&h, &g, &p);
         }
         let damping = 1e-9 * (h.trace() / dim as f64).max(1e-12);
         for k in 0..dim {

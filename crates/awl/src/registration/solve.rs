@@ -3,7 +3,10 @@
 //! The sums are taken per fixed-size chunk in parallel and then added in chunk order, so the
 //! result is bit-identical whatever the number of threads.
 
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::allocator::Allocator;
+use nalgebra::{
+    DefaultAllocator, Dim, Isometry3, Matrix6, OMatrix, OVector, Point3, Translation3, UnitQuaternion, Vector3, Vector6,
+};
 use rayon::prelude::*;
 
 use super::kernel::Kernel;
@@ -108,8 +111,21 @@ pub(crate) fn constraint_on_steps(constraint: &Vector6<f64>, centre: &Vector3<f6
     Vector6::new(a.x, a.y, a.z, beta.x, beta.y, beta.z)
 }
 
-/// A step of a system linearised about `centre` with rotations scaled by `1/length` as a twist
-/// `(ω, v)`.
+/// The projection onto the steps (about `centre`, rotations scaled by `1/length`) whose twists meet
+/// each of `constraints` (see [`constraint_on_steps`], [`complement`]).
+pub(crate) fn keeping(constraints: &[Vector6<f64>], centre: &Vector3<f64>, length: f64) -> Matrix6<f64> {
+    complement(&constraints.iter().map(|c| constraint_on_steps(c, centre, length)).collect::<Vec<_>>())
+}
+
+/// A twist `(ω, v)` as a step of a system linearised about `centre` with rotations scaled by
+/// `1/length`: `(ω length, v + ω × centre)`.
+pub(crate) fn twist_as_step(twist: &Vector6<f64>, centre: &Vector3<f64>, length: f64) -> Vector6<f64> {
+    let omega = Vector3::new(twist[0], twist[1], twist[2]);
+    let v = Vector3::new(twist[3], twist[4], twist[5]) + omega.cross(centre);
+    Vector6::new(omega.x * length, omega.y * length, omega.z * length, v.x, v.y, v.z)
+}
+
+/// The inverse of [`twist_as_step`].
 pub(crate) fn step_as_twist(step: &Vector6<f64>, centre: &Vector3<f64>, length: f64) -> Vector6<f64> {
     let omega = Vector3::new(step[0], step[1], step[2]) / length;
     let v = Vector3::new(step[3], step[4], step[5]) - omega.cross(centre);
@@ -133,12 +149,20 @@ pub(crate) fn complement(constraints: &[Vector6<f64>]) -> Matrix6<f64> {
     basis.iter().fold(Matrix6::identity(), |p, b| p - b * b.transpose())
 }
 
-/// The normal equations `(h, g)` restricted to the steps `p` (a [`complement`]) keeps: the
-/// constrained directions decouple with unit stiffness (scaled to `h`) and no gradient, so the
-/// solved step meets the constraints.
-pub(crate) fn hold(h: &Matrix6<f64>, g: &Vector6<f64>, p: &Matrix6<f64>) -> (Matrix6<f64>, Vector6<f64>) {
-    let scale = (h.trace() / 6.0).max(1e-12);
-    (p * h * p + (Matrix6::identity() - p) * scale, p * g)
+/// The normal equations `(h, g)` restricted to the steps `p` (a projection, [`keeping`]) keeps:
+/// the constrained directions decouple with unit stiffness (scaled to `h`) and no gradient, so the
+/// solved step meets the constraints. Any size: one view's 6x6 system or the joint `6N` one.
+pub(crate) fn hold<D: Dim>(
+    h: &OMatrix<f64, D, D>,
+    g: &OVector<f64, D>,
+    p: &OMatrix<f64, D, D>,
+) -> (OMatrix<f64, D, D>, OVector<f64, D>)
+where
+    DefaultAllocator: Allocator<D, D> + Allocator<D>,
+{
+    let (rows, cols) = h.shape_generic();
+    let scale = (h.trace() / rows.value() as f64).max(1e-12);
+    (p * h * p + (OMatrix::<f64, D, D>::identity_generic(rows, cols) - p) * scale, p * g)
 }
 
 /// What the last search of one source point found: its correspondence, or for a miss how far the
