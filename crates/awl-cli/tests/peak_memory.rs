@@ -11,6 +11,8 @@
 //! kilobytes that hold 100 of its rows (the valid part: a 640 x 480 PNG); a JPEG whose header
 //! declares 16384 x 16384 over a 64 x 64 image's data (the valid part: that 64 x 64 JPEG).
 
+mod common;
+
 use std::process::Command;
 
 /// GNU time, which reports its child's peak resident set.
@@ -36,47 +38,22 @@ fn awl_peak(args: &[&str]) -> (bool, String, f64) {
     (out.status.success(), text, kb / 1024.0)
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &b in bytes {
-        crc ^= u32::from(b);
-        for _ in 0..8 {
-            crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
-}
-
 /// A PNG's chunks rebuilt with its IHDR's height replaced (the CRC recomputed).
 fn with_height(png: &[u8], width: u32, height: u32) -> Vec<u8> {
     let mut out = png.to_vec();
     // signature (8), IHDR length (4) and type (4): width at 16, height at 20, CRC at 29
     out[16..20].copy_from_slice(&width.to_be_bytes());
     out[20..24].copy_from_slice(&height.to_be_bytes());
-    let crc = crc32(&out[12..29]);
+    let crc = crc32fast::hash(&out[12..29]);
     out[29..33].copy_from_slice(&crc.to_be_bytes());
     out
 }
 
 /// A PNG whose header declares `width` x `height` RGB and whose IDAT holds `idat` bytes of zeros.
 fn lying_png(width: u32, height: u32, idat: usize) -> Vec<u8> {
-    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut chunk = |kind: &[u8], data: &[u8]| {
-        out.extend((data.len() as u32).to_be_bytes());
-        let body: Vec<u8> = kind.iter().chain(data).copied().collect();
-        out.extend(&body);
-        out.extend(crc32(&body).to_be_bytes());
-    };
-    let mut ihdr = Vec::new();
-    ihdr.extend(width.to_be_bytes());
-    ihdr.extend(height.to_be_bytes());
-    ihdr.extend([8, 2, 0, 0, 0]);
-    chunk(b"IHDR", &ihdr);
     let mut data = vec![0x78, 0x9c];
     data.resize(idat.max(2), 0);
-    chunk(b"IDAT", &data);
-    chunk(b"IEND", &[]);
-    out
+    common::png_with_header(width, height, 8, 2, &data)
 }
 
 fn rgb_png(width: u32, height: u32) -> Vec<u8> {

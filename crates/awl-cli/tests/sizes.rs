@@ -6,6 +6,8 @@
 //! `--threads 10000`, 150 k targets; a NaN point dropped with a warning naming its file (`awl register`,
 //! `awl evaluate`, `awl info`).
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -39,35 +41,10 @@ fn refused(out: &Output, wants: &[&str]) -> String {
     t
 }
 
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = !0u32;
-    for &b in bytes {
-        crc ^= u32::from(b);
-        for _ in 0..8 {
-            crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
-}
-
 /// A PNG whose header claims `width` x `height` (`color` 0 gray / 2 RGB, `depth` bits) and whose
 /// one IDAT holds a few bytes of a zlib stream: a valid header over a tiny file.
 fn lying_png(width: u32, height: u32, color: u8, depth: u8) -> Vec<u8> {
-    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut chunk = |kind: &[u8], data: &[u8]| {
-        out.extend((data.len() as u32).to_be_bytes());
-        let body: Vec<u8> = kind.iter().chain(data).copied().collect();
-        out.extend(&body);
-        out.extend(crc32(&body).to_be_bytes());
-    };
-    let mut ihdr = Vec::new();
-    ihdr.extend(width.to_be_bytes());
-    ihdr.extend(height.to_be_bytes());
-    ihdr.extend([depth, color, 0, 0, 0]);
-    chunk(b"IHDR", &ihdr);
-    chunk(b"IDAT", &[0x78, 0x9c, 0x63, 0x00, 0x00, 0x00, 0x01, 0x00, 0x01]);
-    chunk(b"IEND", &[]);
-    out
+    common::png_with_header(width, height, depth, color, &[0x78, 0x9c, 0x63, 0x00, 0x00, 0x00, 0x01, 0x00, 0x01])
 }
 
 #[test]

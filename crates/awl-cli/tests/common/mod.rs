@@ -1,6 +1,7 @@
-//! Setup shared by the CLI tests (`mod common;` in pierce.rs, robot_limits.rs, outputs.rs and
-//! trial_robot.rs): running the `awl` binary and reading what it prints or writes, a simulated
-//! piercing-time shot, and the workpiece made from the shot's CAD (sampled in the object frame, so
+//! Setup shared by the CLI tests (`mod common;` in pierce.rs, robot_limits.rs, outputs.rs,
+//! trial_robot.rs, sizes.rs and peak_memory.rs): running the `awl` binary and reading what it prints
+//! or writes, PNG files whose header says what the test needs, a simulated piercing-time shot, and
+//! the workpiece made from the shot's CAD (sampled in the object frame, so
 //! the workpiece's `T_world_tag` is the truth's `T_object_tag`; the fused-model path is tested in
 //! crates/awl/tests/fuse_sim.rs and fuse_reference.rs).
 
@@ -111,4 +112,25 @@ pub fn write_tcp(path: &Path, tool_m: f64) {
     let ee_from_tool = nalgebra::Isometry3::translation(0.0, 0.0, tool_m);
     let rows = awl::transform::rows_from_isometry(&ee_from_tool);
     std::fs::write(path, serde_json::json!({ "T_ee_tool": rows }).to_string()).expect("tcp");
+}
+
+/// A PNG file of one IHDR (`width` x `height`, `depth` bits, `color` type: 0 gray, 2 RGB), one IDAT
+/// holding `idat` as it is, and IEND, each chunk with its CRC: a header claiming anything over a
+/// body of any size.
+pub fn png_with_header(width: u32, height: u32, depth: u8, color: u8, idat: &[u8]) -> Vec<u8> {
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut chunk = |kind: &[u8], data: &[u8]| {
+        out.extend((data.len() as u32).to_be_bytes());
+        let body: Vec<u8> = kind.iter().chain(data).copied().collect();
+        out.extend(&body);
+        out.extend(crc32fast::hash(&body).to_be_bytes());
+    };
+    let mut ihdr = Vec::new();
+    ihdr.extend(width.to_be_bytes());
+    ihdr.extend(height.to_be_bytes());
+    ihdr.extend([depth, color, 0, 0, 0]);
+    chunk(b"IHDR", &ihdr);
+    chunk(b"IDAT", idat);
+    chunk(b"IEND", &[]);
+    out
 }
