@@ -4,5 +4,5 @@ use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
     let path = awl_fuzz::name("arm.json");
-    let _ = awl_fuzz::names_the_file(&path, awl::io::arm::parse_arm(&path, data));
+    let _ = awl_fuzz::names_the_file(&path, awl::kinematics::arm_file::parse_arm(&path, data));
 });

@@ -423,8 +423,11 @@ fn with_a_robot_the_plan_says_whether_the_arm_reaches_and_moves_in_joint_space()
     let t = fail(&["--robot", "ur5e", "--tcp", s(&skew)]);
     assert!(t.contains("T_ee_tool") && t.contains("skew.json"), "{t}");
     let arm_file = dir.join("arm.json");
-    std::fs::write(&arm_file, awl::io::arm::arm_json(&awl::kinematics::Arm::by_name("ur5e").expect("ur5e")))
-        .expect("arm");
+    std::fs::write(
+        &arm_file,
+        awl::kinematics::arm_file::arm_json(&awl::kinematics::Arm::by_name("ur5e").expect("ur5e")),
+    )
+    .expect("arm");
     let mut v = read_json(&arm_file);
     v["dh"].as_array_mut().expect("dh").pop();
     std::fs::write(&arm_file, v.to_string()).expect("arm");

@@ -9,12 +9,12 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use awl::io::handeye::{parse_poses, poses_json};
+use awl::handeye::poses_file::{parse_poses, poses_json};
 use awl::io::mesh::read_cloud;
-use awl::io::plan::{PlanSources, plan_text};
 use awl::io::scan::read_scan;
-use awl::io::workpiece::read_workpiece;
+use awl::pierce::plan_file::{PlanSources, plan_text};
 use awl::pierce::{PierceParams, ScriptSpeeds, Stroke, check_for_robot, plan, techman_packets, urscript};
+use awl::workpiece::json::read_workpiece;
 use awl::workpiece::{SurfaceModel, TargetSpec};
 use common::{awl, cad_workpiece, s, text};
 use nalgebra::Vector3;

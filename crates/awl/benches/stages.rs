@@ -30,11 +30,12 @@ use awl::cluster::{DbscanParams, dbscan};
 use awl::filter::outlier::{SorParams, statistical};
 use awl::filter::voxel::{VoxelParams, downsample};
 use awl::io::image::read_depth_png;
-use awl::io::scan::{ViewData, load_view};
+use awl::io::scan::load_view;
 use awl::io::truth::read_truth;
 use awl::normals::{NormalParams, with_normals};
 use awl::pipeline::FuseConfig;
 use awl::registration::{IcpLevel, IcpParams, refine_jointly, register};
+use awl::scan::ViewData;
 use awl::smooth::{MlsParams, mls};
 use common::{THREADS, input, pool, scan};
 use divan::Bencher;
@@ -205,7 +206,7 @@ input_group!(table_mug);
 /// View `i` of the bench scan prepared as the fuse prepares views given as clouds (2 mm voxel,
 /// SOR, normals toward the camera from a k-d tree; camera frame; not the depth views' pixel-grid
 /// cleaning and smoothed copies), and its recorded pose.
-fn prepared_view(scan: &awl::io::scan::Scan, i: usize, config: &FuseConfig) -> (Isometry3<f64>, PointCloud) {
+fn prepared_view(scan: &awl::scan::Scan, i: usize, config: &FuseConfig) -> (Isometry3<f64>, PointCloud) {
     let rays = scan.camera.map(|c| c.intrinsics.ray_table());
     let v = load_view(scan, i, rays.as_deref()).expect("load");
     let cloud = downsample(&v.cloud_camera, &config.view_voxel).expect("voxel");

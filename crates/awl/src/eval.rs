@@ -23,6 +23,7 @@ use crate::mesh::TriMesh;
 use crate::spatial::KdIndex;
 
 pub mod evaluate;
+pub mod file;
 pub mod global;
 pub mod heatmap;
 pub mod summary;

@@ -31,3 +31,31 @@ impl ColorImage {
             .collect()
     }
 }
+
+/// The pixels of every `step`-th row and column (from the first) of a row-major `width` x `height`
+/// image; `step` 0 is taken as 1.
+fn every_nth<T: Copy>(width: u32, height: u32, data: &[T], step: usize) -> (u32, u32, Vec<T>) {
+    let step = step.max(1);
+    let (w, h) = (width as usize, height as usize);
+    let rows = data.chunks(w.max(1)).take(h).step_by(step);
+    let data: Vec<T> = rows.flat_map(|row| row.iter().step_by(step).copied()).collect();
+    (w.div_ceil(step) as u32, h.div_ceil(step) as u32, data)
+}
+
+impl DepthImage {
+    /// The image of every `step`-th row and column (from the first), as the PNG reader decodes it
+    /// with a step (`io::image::read_depth_png_every_nth`); `step` 0 is taken as 1.
+    pub fn every_nth(&self, step: usize) -> DepthImage {
+        let (width, height, data) = every_nth(self.width, self.height, &self.data, step);
+        DepthImage { width, height, data }
+    }
+}
+
+impl ColorImage {
+    /// The image of every `step`-th row and column (from the first), as the readers decode it
+    /// with a step; `step` 0 is taken as 1.
+    pub fn every_nth(&self, step: usize) -> ColorImage {
+        let (width, height, data) = every_nth(self.width, self.height, &self.data, step);
+        ColorImage { width, height, data }
+    }
+}

@@ -440,6 +440,28 @@ pub fn remove_floor(
     })
 }
 
+/// A plane `normal·p + offset_m = 0` (unit `normal`, pointing up for a floor), model frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FloorPlane {
+    /// Unit normal, up.
+    pub normal: Vector3<f64>,
+    /// `d` in `normal·p + d = 0`, metres.
+    pub offset_m: f64,
+}
+
+impl FloorPlane {
+    /// The plane from a normal of any length; `None` when it is zero or not finite.
+    pub fn new(normal: Vector3<f64>, offset_m: f64) -> Option<Self> {
+        let n = normal.norm();
+        (n.is_finite() && n > 1e-9 && offset_m.is_finite()).then(|| Self { normal: normal / n, offset_m: offset_m / n })
+    }
+
+    /// Signed height of `p` above the plane, metres.
+    pub fn height(&self, p: &Point3<f64>) -> f64 {
+        self.normal.dot(&p.coords) + self.offset_m
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

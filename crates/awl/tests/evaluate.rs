@@ -12,8 +12,8 @@ use common::shared_data;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use awl::eval::file::{read_transform, write_evaluation};
 use awl::eval::{EvaluateParams, Evaluation, evaluate};
-use awl::io::evaluation::{read_transform, write_evaluation};
 use awl::io::mesh::{read_mesh, write_cloud};
 use awl::mesh::TriMesh;
 use awl::{Error, PointCloud};

@@ -15,15 +15,17 @@ use std::sync::OnceLock;
 
 use awl::io::image::read_depth_png;
 use awl::io::mesh::read_mesh;
-use awl::io::scan::{Scan, ViewData, read_scan};
+use awl::io::scan::read_scan;
 use awl::io::truth::{Truth, read_truth};
-use awl::io::workpiece::{read_workpiece, write_workpiece};
 use awl::mesh::TriMesh;
 use awl::pierce::{HandEyePrior, LocateParams, PierceParams, plan};
 use awl::pipeline::{FuseConfig, FuseOutput, fuse};
+use awl::scan::{Scan, ViewData};
 use awl::sim::SceneKind;
 use awl::trial::pick_target;
-use awl::workpiece::{FloorPlane, SurfaceModel, TargetParams, TargetSpec, WorkpieceParams, workpiece_from_fuse};
+use awl::workpiece::file::floor_of_fuse;
+use awl::workpiece::json::{read_workpiece, write_workpiece};
+use awl::workpiece::{SurfaceModel, TargetParams, TargetSpec, WorkpieceParams, workpiece_from_fuse};
 use common::{Outcome, TruthScene, assert_acceptance, evaluate, shared_data};
 use nalgebra::{Isometry3, Vector3};
 
@@ -47,7 +49,7 @@ fn fused(name: &'static str) -> Fused {
         .iter()
         .map(|v| match &v.data {
             ViewData::Depth { depth, .. } => read_depth_png(&dir.join(depth)).expect("depth"),
-            ViewData::Points { .. } => panic!("sim_reference views are depth images"),
+            _ => panic!("sim_reference views are depth images"),
         })
         .collect();
     let out = fuse(&scan, &FuseConfig::default(), &|_, _, _| {}).expect("fuse");
@@ -133,7 +135,7 @@ fn check_face_centre(f: &Fused, name: &str, max_mm: f64, max_deg: f64) {
     let TargetSpec::FaceCentre(pick) = pick_target(SceneKind::Box, target, &object_from_model) else {
         panic!("a box target is a face centre")
     };
-    let surface = SurfaceModel::new(&f.out.model).expect("surface model").with_floor(FloorPlane::of_fuse(&f.out));
+    let surface = SurfaceModel::new(&f.out.model).expect("surface model").with_floor(floor_of_fuse(&f.out));
     let placed = surface.place(&TargetSpec::FaceCentre(pick), &TargetParams::default(), None).expect("face centre");
     let p = object_from_model * placed.point;
     let n = object_from_model.rotation * placed.normal;

@@ -9,9 +9,10 @@ mod common;
 
 use std::sync::OnceLock;
 
-use awl::io::scan::{Scan, read_scan};
+use awl::io::scan::read_scan;
 use awl::pierce::{HandEyePrior, LocateParams, PierceParams};
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
+use awl::scan::Scan;
 use awl::sim::{SceneKind, ShotPose, SimParams, Simulation, simulate, write_simulation};
 use awl::trial::{ShotSetup, TrialSummary, TrialWorkpiece, calibrate_rig, format_table, prepare_workpiece, run_shot};
 use awl::workpiece::{WorkpieceParams, workpiece_from_fuse};
@@ -23,7 +24,6 @@ struct Fused {
     sim: Simulation,
     scan: Scan,
     out: FuseOutput,
-    _dir: tempfile::TempDir,
 }
 
 fn fused(scene: SceneKind, seed: u64, perturb: Option<(usize, Isometry3<f64>)>) -> Fused {
@@ -43,17 +43,15 @@ fn fuse_simulation(sim: Simulation, perturb: Option<(usize, Isometry3<f64>)>) ->
     fuse_simulation_with(sim, perturb, &FuseConfig::default())
 }
 
+/// Fuses the simulation in memory (its images held by the scan, no files written).
 fn fuse_simulation_with(sim: Simulation, perturb: Option<(usize, Isometry3<f64>)>, config: &FuseConfig) -> Fused {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let path = dir.path().join("scan");
-    write_simulation(&path, &sim, false).expect("write");
-    let mut scan = read_scan(&path).expect("read");
+    let mut scan = sim.in_memory_scan();
     if let Some((view, delta)) = perturb {
         let seed_pose = scan.world_from_camera(view).expect("pose");
-        scan.views[view].pose = awl::io::scan::ViewPose::Camera { world_from_camera: seed_pose * delta };
+        scan.views[view].pose = awl::scan::ViewPose::Camera { world_from_camera: seed_pose * delta };
     }
     let out = fuse(&scan, config, &|_, _, _| {}).expect("fuse");
-    Fused { sim, scan, out, _dir: dir }
+    Fused { sim, scan, out }
 }
 
 static BOX_SEED1: OnceLock<Fused> = OnceLock::new();
@@ -169,21 +167,31 @@ fn a_seed_off_by_10cm_10deg_is_rejected() {
     );
 }
 
+/// The scan written to files and read back fuses to the model of the same scan held in memory,
+/// with 1 thread as with 2.
 #[test]
-fn one_and_two_threads_give_the_same_model_bit_for_bit() {
+fn one_and_two_threads_and_files_or_memory_give_the_same_model_bit_for_bit() {
     let sim = simulate(&SimParams { views: 4, seed: 5, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("scan");
     write_simulation(&path, &sim, false).expect("write");
-    let scan = read_scan(&path).expect("read");
-    let run = |threads: usize| {
+    let from_files = read_scan(&path).expect("read");
+    let in_memory = sim.in_memory_scan();
+    let run = |scan: &Scan, threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-        pool.install(|| fuse(&scan, &FuseConfig::default(), &|_, _, _| {}).expect("fuse"))
+        pool.install(|| fuse(scan, &FuseConfig::default(), &|_, _, _| {}).expect("fuse"))
     };
-    let (one, two) = (run(1), run(2));
+    let (one, two, memory) = (run(&from_files, 1), run(&from_files, 2), run(&in_memory, 2));
     assert!(one.model.len() > 10_000, "model has {} points", one.model.len());
     assert_eq!(one.model, two.model, "model differs between 1 and 2 threads");
     assert_eq!(one.poses, two.poses);
+    // the manifest's poses are rounded to its decimal text, about 1e-16 apart from the simulation's
+    assert!(memory.model == two.model, "the in-memory scan fuses to another model");
+    assert_eq!(memory.poses.iter().flatten().count(), two.poses.iter().flatten().count(), "views merged");
+    for (i, (a, b)) in memory.poses.iter().flatten().zip(two.poses.iter().flatten()).enumerate() {
+        let (dt, dr) = awl::transform::pose_difference(a, b);
+        assert!(dt < 1e-12 && dr < 1e-12, "view {i}: poses {dt} m / {dr} rad apart");
+    }
 }
 
 static BOX_WORKPIECE: OnceLock<TrialWorkpiece> = OnceLock::new();

@@ -230,8 +230,8 @@ fn every_parser_survives_seeded_mutations_naming_the_file() {
     let cal = awl::sim::calibration::simulate_calibration(&awl::sim::calibration::CalibrationSimParams::default())
         .expect("calibration");
     let p = at("poses.json");
-    awl::io::handeye::write_poses(&p, &cal.poses).expect("poses");
-    seeds.push(("handeye-poses", p, |p| ok_or_message(awl::io::handeye::read_poses(p))));
+    awl::handeye::poses_file::write_poses(&p, &cal.poses).expect("poses");
+    seeds.push(("handeye-poses", p, |p| ok_or_message(awl::handeye::poses_file::read_poses(p))));
     let p = at("workpiece.json");
     let wp = awl::workpiece::Workpiece {
         model: "model.ply".into(),
@@ -244,8 +244,8 @@ fn every_parser_survives_seeded_mutations_naming_the_file() {
         hand_eye: None,
         warnings: Vec::new(),
     };
-    awl::io::workpiece::write_workpiece(&p, &wp).expect("workpiece");
-    seeds.push(("workpiece-json", p, |p| ok_or_message(awl::io::workpiece::read_workpiece(p))));
+    awl::workpiece::json::write_workpiece(&p, &wp).expect("workpiece");
+    seeds.push(("workpiece-json", p, |p| ok_or_message(awl::workpiece::json::read_workpiece(p))));
     let p = at("fuse.json");
     std::fs::write(&p, r#"{"pixel_step": 2, "registration": {"icp": {"kernel": "huber"}}, "smoothing": null}"#)
         .expect("config");

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use awl::Error;
+use awl::handeye::poses_file::{parse_poses, poses_json, read_poses, write_poses};
 use awl::handeye::{Diagnosis, HandEyeMethod, HandEyeParams, HandEyePose, HandEyeResult, Inversion, calibrate};
-use awl::io::handeye::{parse_poses, poses_json, read_poses, write_poses};
 use awl::sim::calibration::{CalibrationCapture, CalibrationMotion, CalibrationSimParams, simulate_calibration};
 use awl::transform::{isometry_from_rows, isometry_from_translation_rotvec, pose_difference};
 use nalgebra::{Isometry3, Quaternion, UnitQuaternion, Vector3};

@@ -12,9 +12,9 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use awl::handeye::poses_file::write_poses;
 use awl::handeye::{CaptureParams, FlipChoice, HandEyePose, HandEyeResult, calibrate, calibrate_capture};
 use awl::io::capture::read_capture;
-use awl::io::handeye::write_poses;
 use awl::transform::{Rows, isometry_from_rows, pose_difference};
 use nalgebra::Isometry3;
 use serde_json::Value;

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 
 use awl::Error;
-use awl::io::arm::{arm_json, parse_arm};
+use awl::kinematics::arm_file::{arm_json, parse_arm};
 use awl::kinematics::arms::KNOWN;
 use awl::kinematics::ik::{inverse, joint_distance};
 use awl::kinematics::line::largest_step_rad;

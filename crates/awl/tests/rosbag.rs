@@ -15,12 +15,13 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use awl::io::image::{read_color_image, read_depth_png};
-use awl::io::scan::{Scan, ViewData, ViewPose, read_scan};
+use awl::io::scan::read_scan;
 use awl::pipeline::config::FuseConfig;
 use awl::pipeline::fuse;
 use awl::rosbag::cdr::decode_tf_message;
 use awl::rosbag::tf::TfBuffer;
 use awl::rosbag::{Bag, ImportParams, ImportReport, import_rosbag};
+use awl::scan::{Scan, ViewData, ViewPose};
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
 use awl::transform::{isometry_from_rows, pose_difference};
 use nalgebra::Isometry3;
@@ -93,7 +94,7 @@ fn check_against_folder(original: &Scan, imported: &Scan, report: &ImportReport,
     for (i, (got, want)) in imported.views.iter().zip(&original.views).enumerate() {
         let ((gw, ge), (ww, we)) = (chain(&got.pose), chain(&want.pose));
         largest = largest.max(worst(&gw, &ww)).max(worst(&ge, &we));
-        let stop = |v: &awl::io::scan::ViewSpec| v.extra.get("base_stop").and_then(serde_json::Value::as_u64);
+        let stop = |v: &awl::scan::ViewSpec| v.extra.get("base_stop").and_then(serde_json::Value::as_u64);
         assert_eq!(stop(got), stop(want), "view {i}: base_stop");
         let (ViewData::Depth { depth: gd, color: gc }, ViewData::Depth { depth: wd, color: wc }) =
             (&got.data, &want.data)

@@ -360,7 +360,7 @@ fn shots_are_in_the_robot_frame_and_see_the_tag() {
         let sim = simulate(&SimParams::shot(scene, pose)).expect("shot");
         assert_eq!(sim.views.len(), 2);
         for (i, view) in sim.scan.views.iter().enumerate() {
-            let awl::io::scan::ViewPose::Chain { world_from_base, .. } = view.pose else { panic!("chain poses") };
+            let awl::scan::ViewPose::Chain { world_from_base, .. } = view.pose else { panic!("chain poses") };
             assert_eq!(world_from_base, Isometry3::identity());
             assert!(tag_in_image(&sim, i), "{scene:?} {pose:?}: tag outside view {i}");
             let (fraction, clean) = tag_modules_match(&sim, i);

@@ -16,8 +16,9 @@ use std::sync::OnceLock;
 
 use awl::camera::{DepthCamera, depth_to_cloud};
 use awl::handeye::{HandEyeParams, HandEyePose, calibrate};
-use awl::io::scan::{ViewPose, read_scan};
+use awl::io::scan::read_scan;
 use awl::io::truth::read_truth;
+use awl::scan::ViewPose;
 use awl::sim::capture::{CaptureParams, simulate_capture};
 use awl::sim::{LABEL_WORKPIECE, NoiseLevel, Simulation, axial_sigma_m, rig_ee_from_camera, write_simulation};
 use awl::tag::{TagDetector, estimate_tag_pose, score_depth};

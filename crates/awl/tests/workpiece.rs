@@ -11,10 +11,11 @@ use awl::Error;
 use awl::cloud::PointCloud;
 use awl::filter::voxel::{VoxelParams, downsample};
 use awl::io::image::{read_color_png, write_color_png};
-use awl::io::scan::{LoadedView, Scan, TagSpec, load_view, read_scan};
+use awl::io::scan::{load_view, read_scan};
 use awl::io::truth::{Truth, read_truth};
-use awl::io::workpiece::read_workpiece;
+use awl::scan::{LoadedView, Scan, TagSpec};
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
+use awl::workpiece::json::read_workpiece;
 use awl::workpiece::{
     RefineParams, SurfaceModel, TagEstimate, TagEstimateParams, TagView, TargetParams, TargetSpec, estimate_from_views,
     refine_on_model, search_tags,

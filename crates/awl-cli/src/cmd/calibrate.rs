@@ -5,11 +5,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use awl::handeye::poses_file::{read_poses, write_poses};
 use awl::handeye::{
     CaptureCalibration, CaptureParams, HandEyeMethod, HandEyeParams, HandEyeResult, calibrate, calibrate_capture,
 };
 use awl::io::capture::read_capture;
-use awl::io::handeye::{read_poses, write_poses};
 use awl::io::outputs::OutputCheck;
 use awl::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use awl::transform::rows_from_isometry;

@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use awl::eval::file::{read_transform, write_evaluation};
 use awl::eval::{EvaluateParams, Evaluation, evaluate};
-use awl::io::evaluation::{read_transform, write_evaluation};
 use awl::io::outputs::{OutputCheck, StagedFolder};
-use awl::io::report::{REPORT_FILE, write_report};
 use awl::io::truth::read_truth;
+use awl::report_html::write::{REPORT_FILE, write_report};
 use awl::report_html::{PageParams, evaluate_page};
 
 use super::common::set_threads;

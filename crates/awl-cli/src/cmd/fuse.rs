@@ -5,11 +5,12 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::io::mesh::write_cloud;
 use awl::io::outputs::{OutputCheck, StagedFolder};
-use awl::io::report::{REPORT_FILE, write_report};
-use awl::io::scan::{Scan, read_scan};
-use awl::io::workpiece::write_workpiece;
+use awl::io::scan::read_scan;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
+use awl::report_html::write::{REPORT_FILE, write_report};
 use awl::report_html::{PageParams, fuse_page};
+use awl::scan::Scan;
+use awl::workpiece::json::write_workpiece;
 use awl::workpiece::{TagSearch, WORKPIECE_FILE, Workpiece, WorkpieceParams, search_tags, workpiece_from_search};
 
 use super::common::{set_threads, stage_bar, write_json};

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use awl::io::scan::TagSpec;
 use awl::rosbag::still::StillParams;
 use awl::rosbag::{ImportParams, ImportProgress, import_rosbag};
+use awl::scan::TagSpec;
 
 use crate::cmd::common::stage_bar;
 

@@ -4,8 +4,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use awl::cloud::Bounds;
-use awl::io::scan::{ViewData, ViewPose, load_view, read_scan};
+use awl::io::scan::{load_view, read_scan};
 use awl::io::{Loaded, extension, mesh};
+use awl::scan::{ViewData, ViewPose};
 use serde_json::json;
 
 /// Arguments of `awl info`.
@@ -54,8 +55,9 @@ fn scan_info(dir: &Path) -> anyhow::Result<serde_json::Value> {
         warnings.extend(loaded.warnings.iter().map(|w| format!("view {i}: {w}")));
         let cloud_world = loaded.cloud_camera.transformed(&loaded.world_from_camera);
         let (kind, file) = match &view.data {
-            ViewData::Depth { depth, color } => (if color.is_some() { "depth+color" } else { "depth" }, depth),
-            ViewData::Points { points } => ("points", points),
+            ViewData::Depth { depth, color } => (if color.is_some() { "depth+color" } else { "depth" }, Some(depth)),
+            ViewData::Points { points } => ("points", Some(points)),
+            ViewData::Images { .. } => ("images in memory", None),
         };
         let pose = match view.pose {
             ViewPose::Camera { .. } => "T_world_camera",

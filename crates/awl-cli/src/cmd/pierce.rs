@@ -4,20 +4,20 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use awl::io::arm::read_arm;
-use awl::io::evaluation::read_transform;
-use awl::io::handeye::read_ee_from_camera;
+use awl::eval::file::read_transform;
+use awl::handeye::poses_file::read_ee_from_camera;
 use awl::io::outputs::{OutputCheck, write_files_atomic};
-use awl::io::plan::{PlanSources, plan_json, plan_value_text, programs_json};
 use awl::io::scan::read_scan;
-use awl::io::workpiece::{read_targets, read_workpiece};
 use awl::kinematics::Arm;
+use awl::kinematics::arm_file::read_arm;
+use awl::pierce::plan_file::{PlanSources, plan_json, plan_value_text, programs_json};
 use awl::pierce::{
     AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ReachParams, ScriptSpeeds, Stroke, Tolerance,
     plan, plan_reach, shot_joints, techman_packets, urscript,
 };
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
+use awl::workpiece::json::{read_targets, read_workpiece};
 use nalgebra::Isometry3;
 
 use super::common::NoGo;
@@ -255,7 +255,7 @@ fn stroke(args: &PierceArgs) -> anyhow::Result<Stroke> {
 
 /// Refuses outputs that are an input (the workpiece, its model, a shot file, the targets or hand-eye
 /// file), lie in the shot folder, name the same file, or exist without `--force`.
-fn check_outputs(args: &PierceArgs, model: &Path, shot: &awl::io::scan::Scan) -> anyhow::Result<()> {
+fn check_outputs(args: &PierceArgs, model: &Path, shot: &awl::scan::Scan) -> anyhow::Result<()> {
     let mut check = OutputCheck::new(args.force);
     check
         .input_file(&args.workpiece, "WORKPIECE")

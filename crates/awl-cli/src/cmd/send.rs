@@ -5,7 +5,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use awl::io::plan::read_plan_to_send;
+use awl::pierce::plan_file::read_plan_to_send;
 use awl::robot::{TECHMAN_PORT, UR_SECONDARY_PORT, techman, ur};
 
 /// Arguments of `awl send`.

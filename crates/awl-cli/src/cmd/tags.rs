@@ -7,9 +7,9 @@ use anyhow::Context;
 use awl::camera::Intrinsics;
 use awl::io::capture::read_camera_file;
 use awl::io::image::read_color_image;
+use awl::tag::SUPPORTED_FAMILY;
 use awl::tag::{AprilTagDetector, DetectorParams, PosedTag, TagPoseSolution, detect_and_pose};
 use awl::transform::rows_from_isometry;
-use awl::workpiece::tag_pose::SUPPORTED_FAMILY;
 use serde_json::json;
 
 /// Arguments of `awl tags`.

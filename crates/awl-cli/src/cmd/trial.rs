@@ -89,7 +89,7 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "face_centre": r.face_centre,
         "base_distance_m": r.base_distance_m(),
         "base_horizontal_m": r.base_horizontal_m(),
-        "reach": r.reach.as_ref().map(awl::io::plan::reach_json),
+        "reach": r.reach.as_ref().map(awl::pierce::plan_file::reach_json),
     })
 }
 

@@ -14,7 +14,7 @@ use std::process::{Command, Output};
 use awl::io::mesh::{read_mesh, write_cloud};
 use awl::io::scan::read_scan;
 use awl::io::truth::{Truth, read_truth};
-use awl::io::workpiece::write_workpiece;
+use awl::workpiece::json::write_workpiece;
 use awl::workpiece::{FloorPlane, Workpiece};
 use nalgebra::Vector3;
 

@@ -27,10 +27,10 @@ use crate::camera::PixelRect;
 use crate::error::{Error, Result};
 use crate::handeye::{HandEyeParams, HandEyePose, HandEyeResult, PoseResidual, calibrate};
 use crate::io::capture::Capture;
+use crate::tag::SUPPORTED_FAMILY;
 use crate::tag::{
     AprilTagDetector, DetectorParams, MIN_DEPTH_POINTS, TagDetector, TagPose, estimate_tag_pose, score_depth,
 };
-use crate::workpiece::tag_pose::SUPPORTED_FAMILY;
 
 /// Settings of [`calibrate_capture`]; every field has a documented default.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

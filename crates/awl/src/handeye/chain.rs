@@ -511,7 +511,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::sim::random::{normal_perturbation, uniform, unit_vector};
+    use crate::random::{normal_perturbation, uniform, unit_vector};
 
     const ARM_M: f64 = 0.0006;
     const ARM_RAD: f64 = 0.06 * std::f64::consts::PI / 180.0;

@@ -61,7 +61,7 @@
 //!             "T_camera_target": [[..], [..], [..], [0, 0, 0, 1]]}, ...]}
 //! ```
 //! 4x4 row-major rigid matrices, metres; `T_base_ee` from the arm's forward kinematics,
-//! `T_camera_target` from the tag/board detector. Read and written by [`crate::io::handeye`].
+//! `T_camera_target` from the tag/board detector. Read and written by [`crate::handeye::poses_file`].
 //!
 //! Tsai-Lenz divides by `cos(angle/2)` of `X`'s rotation: it loses accuracy as that angle nears 180
 //! degrees (Park-Martin and Daniilidis do not).
@@ -73,6 +73,7 @@ mod diagnosis;
 mod diversity;
 mod motion;
 mod park;
+pub mod poses_file;
 mod refine;
 mod residual;
 mod solve;

@@ -17,9 +17,8 @@ use crate::error::{Error, Result};
 use crate::image::ColorImage;
 use crate::io::image::{read_color_image, read_depth_png};
 use crate::io::read_bytes;
-use crate::io::scan::{
-    FORMAT, RawIntrinsics, TagSpec, check_size, intrinsics_from_parts, parse_json, pose_field, positive,
-};
+use crate::io::scan::{FORMAT, RawIntrinsics, check_size, intrinsics_from_parts, parse_json, pose_field, positive};
+use crate::scan::TagSpec;
 use crate::transform::Rows;
 
 /// A `T_world_base` farther than this from identity is refused in a capture, metres or radians.

@@ -3,22 +3,16 @@
 //! Every error names the file (and the field, for structured files). Writers are atomic: they
 //! write a temporary sibling and rename it into place, so a crash never leaves half a file.
 
-pub mod arm;
 pub mod capture;
-pub mod evaluation;
-pub mod handeye;
 pub mod image;
 pub mod mesh;
 pub mod outputs;
 pub mod pcd;
 mod pcd_header;
-pub mod plan;
 pub mod ply;
 mod ply_header;
-pub mod report;
 pub mod scan;
 pub mod truth;
-pub mod workpiece;
 
 use std::fs;
 use std::io::Write;

@@ -1,5 +1,6 @@
-//! The scan folder (`awl-scan/1`, see `shared/spec/scan-format.md`): manifest reader and writer,
-//! and loading of one view as a point cloud in the camera frame.
+//! The scan folder (`awl-scan/1`, see `shared/spec/scan-format.md`): manifest reader and writer
+//! of a [`Scan`], and loading of one view (from its files, or its images in memory) as a point
+//! cloud in the camera frame.
 //!
 //! This is the only place where the manifest's 4x4 matrices become isometries; non-rigid matrices
 //! are refused here with the file and the field named.
@@ -16,164 +17,11 @@ use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
 use crate::io::image::{read_color_image_every_nth, read_depth_png_every_nth};
 use crate::io::{read_bytes, write_atomic};
+use crate::scan::{LoadedView, Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
 
 /// The format string of this version of the scan folder.
 pub const FORMAT: &str = "awl-scan/1";
-
-/// The fiducial stuck on the workpiece.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TagSpec {
-    /// Tag family, e.g. `tag36h11`.
-    pub family: String,
-    /// Tag id within the family.
-    pub id: u32,
-    /// Black-border edge length, metres.
-    #[serde(rename = "size")]
-    pub size_m: f64,
-}
-
-/// Where a view's measurements are, relative to the scan folder.
-#[derive(Debug, Clone, PartialEq)]
-pub enum ViewData {
-    /// A 16-bit depth PNG and an optional registered 8-bit color image (PNG or JPEG).
-    Depth {
-        /// Depth image path.
-        depth: PathBuf,
-        /// Color image path.
-        color: Option<PathBuf>,
-    },
-    /// A point file (PLY or PCD) in the camera frame, metres.
-    Points {
-        /// Point file path.
-        points: PathBuf,
-    },
-}
-
-/// A view's recorded camera pose (the seed that registration refines).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ViewPose {
-    /// The camera pose given directly.
-    Camera {
-        /// `T_world_camera`.
-        world_from_camera: Isometry3<f64>,
-    },
-    /// SLAM base pose and arm forward kinematics; the camera pose also needs `T_ee_camera`.
-    Chain {
-        /// `T_world_base` (SLAM).
-        world_from_base: Isometry3<f64>,
-        /// `T_base_ee` (arm forward kinematics).
-        base_from_ee: Isometry3<f64>,
-    },
-}
-
-/// One view of a scan.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ViewSpec {
-    /// The measurements.
-    pub data: ViewData,
-    /// The recorded pose.
-    pub pose: ViewPose,
-    /// Keys the spec does not define (kept so a rewrite does not lose a rig's metadata).
-    pub extra: Map<String, Value>,
-}
-
-/// A scan folder's manifest, with validated poses. Paths are relative to `dir`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Scan {
-    /// The folder holding `scan.json`.
-    pub dir: PathBuf,
-    /// The depth camera; required when any view has a depth image.
-    pub camera: Option<DepthCamera>,
-    /// `T_ee_camera`, the hand-eye calibration; required when any view gives `T_base_ee`.
-    pub ee_from_camera: Option<Isometry3<f64>>,
-    /// The tag on the workpiece, if any.
-    pub tag: Option<TagSpec>,
-    /// The views, in capture order.
-    pub views: Vec<ViewSpec>,
-    /// What the reader fixed and the user should know (a pose re-orthonormalised, naming its field).
-    pub warnings: Vec<String>,
-}
-
-/// A view loaded into memory.
-#[derive(Debug, Clone)]
-pub struct LoadedView {
-    /// The recorded camera pose, `T_world_camera`.
-    pub world_from_camera: Isometry3<f64>,
-    /// Points inside the depth range, camera frame, with colors when the view has them.
-    pub cloud_camera: PointCloud,
-    /// For a depth view, the pixel (`v * width + u`) each point came from.
-    pub pixels: Option<Vec<u32>>,
-    /// The color image, when the view has one ([`load_view_every_nth`]: its every `step`-th row
-    /// and column).
-    pub color: Option<ColorImage>,
-    /// What loading the view's files dropped or ignored (a point file's non-finite points, bytes
-    /// after its body), each naming the file.
-    pub warnings: Vec<String>,
-}
-
-impl Scan {
-    /// Path of `scan.json` in `dir`.
-    pub fn manifest_path(dir: &Path) -> PathBuf {
-        dir.join("scan.json")
-    }
-
-    /// View `index` of the manifest.
-    ///
-    /// # Errors
-    /// [`Error::Field`] (`views`) when the index is out of range.
-    pub fn view(&self, index: usize) -> Result<&ViewSpec> {
-        self.views.get(index).ok_or_else(|| {
-            Error::field(
-                Self::manifest_path(&self.dir),
-                "views",
-                format!("no view {index} (scan has {})", self.views.len()),
-            )
-        })
-    }
-
-    /// Every file the scan reads: `scan.json` and each view's depth, color or point file (paths as
-    /// the manifest names them, joined to `dir`; a view may name a file outside the folder).
-    pub fn input_files(&self) -> Vec<PathBuf> {
-        let mut files = vec![Self::manifest_path(&self.dir)];
-        for v in &self.views {
-            match &v.data {
-                ViewData::Depth { depth, color } => {
-                    files.push(self.dir.join(depth));
-                    files.extend(color.iter().map(|c| self.dir.join(c)));
-                }
-                ViewData::Points { points } => files.push(self.dir.join(points)),
-            }
-        }
-        files
-    }
-
-    /// The depth camera (`camera` in `scan.json`).
-    ///
-    /// # Errors
-    /// [`Error::Field`] (`camera`) when the scan has none.
-    pub fn depth_camera(&self) -> Result<&DepthCamera> {
-        self.camera.as_ref().ok_or_else(|| Error::field(Self::manifest_path(&self.dir), "camera", "missing"))
-    }
-
-    /// The recorded `T_world_camera` of view `index`.
-    ///
-    /// # Errors
-    /// [`Error::Field`] when the view gives `T_base_ee` but the scan has no `T_ee_camera`
-    /// (the reader already refuses that, so only hand-built scans reach it), or the index is out of range.
-    pub fn world_from_camera(&self, index: usize) -> Result<Isometry3<f64>> {
-        let manifest = Self::manifest_path(&self.dir);
-        match self.view(index)?.pose {
-            ViewPose::Camera { world_from_camera } => Ok(world_from_camera),
-            ViewPose::Chain { world_from_base, base_from_ee } => {
-                let ee_from_camera = self
-                    .ee_from_camera
-                    .ok_or_else(|| Error::field(&manifest, "T_ee_camera", "missing, but views give T_base_ee"))?;
-                Ok(world_from_base * base_from_ee * ee_from_camera)
-            }
-        }
-    }
-}
 
 #[derive(Deserialize, Serialize)]
 struct RawCamera {
@@ -455,7 +303,8 @@ pub fn read_scan(dir_or_manifest: &Path) -> Result<Scan> {
 /// Writes `scan.dir/scan.json` atomically (images and point files are the caller's to write).
 ///
 /// # Errors
-/// [`Error::Io`] when the manifest cannot be written.
+/// [`Error::Io`] when the manifest cannot be written; [`Error::Field`] (`views[i]`) for a view
+/// whose images are held in memory (write them as files first).
 pub fn write_scan(scan: &Scan) -> Result<()> {
     let camera = scan.camera.map(|c| RawCamera {
         width: c.intrinsics.width,
@@ -469,13 +318,19 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
         depth_min: Some(c.depth_min_m),
         depth_max: c.depth_max_m.is_finite().then_some(c.depth_max_m),
     });
+    let path = Scan::manifest_path(&scan.dir);
     let views = scan
         .views
         .iter()
-        .map(|v| {
+        .enumerate()
+        .map(|(i, v)| {
             let (depth, color, points) = match &v.data {
                 ViewData::Depth { depth, color } => (Some(depth.clone()), color.clone(), None),
                 ViewData::Points { points } => (None, None, Some(points.clone())),
+                ViewData::Images { .. } => {
+                    let why = "its images are held in memory: write them as files and name them first";
+                    return Err(Error::field(&path, format!("views[{i}]"), why));
+                }
             };
             let (world_camera, world_base, base_ee) = match &v.pose {
                 ViewPose::Camera { world_from_camera } => (Some(rows_from_isometry(world_from_camera)), None, None),
@@ -483,9 +338,9 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
                     (None, Some(rows_from_isometry(world_from_base)), Some(rows_from_isometry(base_from_ee)))
                 }
             };
-            RawView { depth, color, points, world_camera, world_base, base_ee, extra: v.extra.clone() }
+            Ok(RawView { depth, color, points, world_camera, world_base, base_ee, extra: v.extra.clone() })
         })
-        .collect();
+        .collect::<Result<Vec<_>>>()?;
     let raw = RawScan {
         format: FORMAT.into(),
         camera,
@@ -493,7 +348,6 @@ pub fn write_scan(scan: &Scan) -> Result<()> {
         tag: scan.tag.clone(),
         views,
     };
-    let path = Scan::manifest_path(&scan.dir);
     let text = serde_json::to_string_pretty(&raw).map_err(|e| Error::invalid("scan manifest", e.to_string()))?;
     write_atomic(&path, text.as_bytes())
 }
@@ -506,31 +360,64 @@ pub(crate) fn check_size(path: &Path, camera: &DepthCamera, width: u32, height: 
     Ok(())
 }
 
-/// The scan's camera and the depth image at `depth` (relative to the scan folder), its size checked.
-fn read_depth<'a>(scan: &'a Scan, depth: &Path) -> Result<(&'a DepthCamera, DepthImage)> {
-    read_depth_every_nth(scan, depth, 1)
-}
-
-/// [`read_depth`] keeping every `step`-th row and column ([`read_depth_png_every_nth`]).
-fn read_depth_every_nth<'a>(scan: &'a Scan, depth: &Path, step: usize) -> Result<(&'a DepthCamera, DepthImage)> {
+/// The depth image of a view's data, of every `step`-th row and column of the camera's
+/// ([`read_depth_png_every_nth`] for a file, [`DepthImage::every_nth`] for one in memory), its size
+/// checked against the scan's camera. `None` for a point-file view.
+fn view_depth_every_nth<'a>(
+    scan: &'a Scan,
+    data: &ViewData,
+    step: usize,
+) -> Result<Option<(&'a DepthCamera, DepthImage)>> {
+    if let ViewData::Points { .. } = data {
+        return Ok(None);
+    }
     let camera = scan.depth_camera()?;
-    let depth_path = scan.dir.join(depth);
-    let (image, (width, height)) = read_depth_png_every_nth(&depth_path, step)?;
-    check_size(&depth_path, camera, width, height)?;
-    Ok((camera, image))
+    let image = match data {
+        ViewData::Depth { depth, .. } => {
+            let path = scan.dir.join(depth);
+            let (image, (width, height)) = read_depth_png_every_nth(&path, step)?;
+            check_size(&path, camera, width, height)?;
+            image
+        }
+        ViewData::Images { depth, .. } => {
+            check_size(&Scan::manifest_path(&scan.dir), camera, depth.width, depth.height)?;
+            if step <= 1 { DepthImage::clone(depth) } else { depth.every_nth(step) }
+        }
+        ViewData::Points { .. } => return Ok(None),
+    };
+    Ok(Some((camera, image)))
 }
 
-/// The color image at `color` (relative to the scan folder), its size checked against `camera`.
-pub(crate) fn read_color(scan: &Scan, camera: &DepthCamera, color: &Path) -> Result<ColorImage> {
-    read_color_every_nth(scan, camera, color, 1)
+/// The color image of a view's data, of every `step`-th row and column of the camera's
+/// ([`read_color_image_every_nth`] for a file: PNG or JPEG), its size checked against `camera`.
+/// `None` when the view has no color image.
+fn view_color_every_nth(scan: &Scan, camera: &DepthCamera, data: &ViewData, step: usize) -> Result<Option<ColorImage>> {
+    match data {
+        ViewData::Depth { color: Some(color), .. } => {
+            let path = scan.dir.join(color);
+            let (image, (width, height)) = read_color_image_every_nth(&path, step)?;
+            check_size(&path, camera, width, height)?;
+            Ok(Some(image))
+        }
+        ViewData::Images { color: Some(color), .. } => {
+            check_size(&Scan::manifest_path(&scan.dir), camera, color.width, color.height)?;
+            Ok(Some(if step <= 1 { ColorImage::clone(color) } else { color.every_nth(step) }))
+        }
+        _ => Ok(None),
+    }
 }
 
-/// [`read_color`] keeping every `step`-th row and column ([`read_color_image_every_nth`]: PNG or JPEG).
-fn read_color_every_nth(scan: &Scan, camera: &DepthCamera, color: &Path, step: usize) -> Result<ColorImage> {
-    let color_path = scan.dir.join(color);
-    let (image, (width, height)) = read_color_image_every_nth(&color_path, step)?;
-    check_size(&color_path, camera, width, height)?;
-    Ok(image)
+/// The color image of view `index` (a file, or held in memory), its size checked against the
+/// scan's camera; `None` when the view has none.
+///
+/// # Errors
+/// As [`load_view`].
+pub fn read_view_color(scan: &Scan, index: usize) -> Result<Option<ColorImage>> {
+    let data = &scan.view(index)?.data;
+    if !data.has_color() {
+        return Ok(None);
+    }
+    view_color_every_nth(scan, scan.depth_camera()?, data, 1)
 }
 
 /// The points of `depth` and `color`, images of every `step`-th row and column of the camera's
@@ -557,8 +444,7 @@ fn back_project(
 /// # Errors
 /// As [`load_view`].
 pub fn load_depth_points(scan: &Scan, index: usize, rect: Option<&PixelRect>) -> Result<Option<Vec<Point3<f32>>>> {
-    let ViewData::Depth { depth, .. } = &scan.view(index)?.data else { return Ok(None) };
-    let (camera, image) = read_depth(scan, depth)?;
+    let Some((camera, image)) = view_depth_every_nth(scan, &scan.view(index)?.data, 1)? else { return Ok(None) };
     let whole = PixelRect { u: 0..image.width, v: 0..image.height };
     Ok(Some(depth_points_in(&image, camera, rect.unwrap_or(&whole))))
 }
@@ -581,61 +467,26 @@ pub fn load_view(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>) -> Result
 /// As [`load_view`].
 pub fn load_view_every_nth(scan: &Scan, index: usize, rays: Option<&[[f32; 2]]>, step: usize) -> Result<LoadedView> {
     let world_from_camera = scan.world_from_camera(index)?;
-    match &scan.view(index)?.data {
-        ViewData::Depth { depth, color } => {
-            // the images decoded on the coarse grid: back-projected there with a step of 1
-            let (camera, depth_image) = read_depth_every_nth(scan, depth, step)?;
-            let color = color.as_deref().map(|c| read_color_every_nth(scan, camera, c, step)).transpose()?;
-            let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
-            Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color, warnings: Vec::new() })
+    let data = &scan.view(index)?.data;
+    if let ViewData::Points { points } = data {
+        let crate::io::Loaded { value: mut cloud_camera, warnings } =
+            crate::io::mesh::read_cloud_checked(&scan.dir.join(points))?;
+        if let Some(camera) = &scan.camera {
+            let keep: Vec<usize> = (0..cloud_camera.len())
+                .filter(|&i| {
+                    let z = f64::from(cloud_camera.points[i].z);
+                    z >= camera.depth_min_m && z <= camera.depth_max_m
+                })
+                .collect();
+            cloud_camera = cloud_camera.select(&keep);
         }
-        ViewData::Points { points } => {
-            let crate::io::Loaded { value: mut cloud_camera, warnings } =
-                crate::io::mesh::read_cloud_checked(&scan.dir.join(points))?;
-            if let Some(camera) = &scan.camera {
-                let keep: Vec<usize> = (0..cloud_camera.len())
-                    .filter(|&i| {
-                        let z = f64::from(cloud_camera.points[i].z);
-                        z >= camera.depth_min_m && z <= camera.depth_max_m
-                    })
-                    .collect();
-                cloud_camera = cloud_camera.select(&keep);
-            }
-            Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None, warnings })
-        }
+        return Ok(LoadedView { world_from_camera, cloud_camera, pixels: None, color: None, warnings });
     }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::camera::every_nth_grid;
-    use crate::sim::{SceneKind, SimParams, simulate, write_simulation};
-
-    /// A view loaded at every `step`-th pixel, from images decoded on that grid only: the points,
-    /// colors and pixel numbers of the full images back-projected at that step.
-    #[test]
-    fn every_nth_pixel_equals_the_full_images_at_that_step() {
-        let sim = simulate(&SimParams { views: 1, seed: 5, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
-        let dir = tempfile::tempdir().expect("tempdir");
-        write_simulation(dir.path(), &sim, false).expect("write");
-        let scan = read_scan(dir.path()).expect("read");
-        let ViewData::Depth { depth, color: Some(color) } = &scan.views[0].data else { panic!("a color depth view") };
-        let (camera, full_depth) = read_depth(&scan, depth).expect("depth");
-        let full_color = read_color(&scan, camera, color).expect("color");
-        for step in [1, 2, 3] {
-            let rays = camera.intrinsics.ray_table_every_nth(step);
-            let (want, want_pixels) = depth_to_cloud_every_nth(&full_depth, Some(&full_color), camera, &rays, step);
-            assert!(want.len() > 10_000 / (step * step), "{} points at step {step}", want.len());
-            for table in [Some(rays.as_slice()), None] {
-                let got = load_view_every_nth(&scan, 0, table, step).expect("view");
-                assert_eq!(got.cloud_camera, want, "step {step}");
-                assert_eq!(got.pixels.as_deref(), Some(want_pixels.as_slice()), "step {step}");
-                let thinned = got.color.expect("color image");
-                let (w, h) = every_nth_grid(full_color.width as usize, full_color.height as usize, step);
-                assert_eq!((thinned.width as usize, thinned.height as usize), (w, h));
-                assert_eq!(thinned.data[w + 1], full_color.data[step * full_color.width as usize + step]);
-            }
-        }
-    }
+    // the images decoded on the coarse grid: back-projected there with a step of 1
+    let Some((camera, depth_image)) = view_depth_every_nth(scan, data, step)? else {
+        return Err(Error::field(Scan::manifest_path(&scan.dir), format!("views[{index}]"), "has no depth image"));
+    };
+    let color = view_color_every_nth(scan, camera, data, step)?;
+    let (cloud_camera, pixels) = back_project(&depth_image, color.as_ref(), camera, rays, step);
+    Ok(LoadedView { world_from_camera, cloud_camera, pixels: Some(pixels), color, warnings: Vec::new() })
 }

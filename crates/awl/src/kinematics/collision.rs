@@ -16,8 +16,8 @@ use parry3d_f64::shape::Capsule;
 use super::line::LineReport;
 use super::{Arm, Joints};
 use crate::error::{Error, Result};
+use crate::segment::FloorPlane;
 use crate::spatial::KdIndex;
-use crate::workpiece::file::FloorPlane;
 
 /// A part of the arm's tool end that collision checks place a capsule on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

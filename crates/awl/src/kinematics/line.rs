@@ -12,8 +12,19 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::ik::{self, Branch, IkParams, IkSolution, Measures, Reason, joint_distance};
 use super::{Arm, Joints};
+
 use crate::error::{Error, Result};
-use crate::pierce::ToolPoses;
+
+/// The three tool poses of one target, base frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToolPoses {
+    /// `T_base_approach`: on the axis, before the surface.
+    pub approach: Isometry3<f64>,
+    /// `T_base_pierce`: on the axis, `depth_m` into the surface.
+    pub pierce: Isometry3<f64>,
+    /// `T_base_retract`: back out along the axis.
+    pub retract: Isometry3<f64>,
+}
 
 /// Settings of [`check_path`].
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -3,7 +3,7 @@
 //! Robots' e-Series and Techman's TM5/TM12/TM14: [`ik`]), and straight tool lines checked for
 //! limits, singularities and joint jumps, with the spin about a piercing axis that keeps the most
 //! margin ([`line`]). Built-in tables in [`arms`]; the arm file (`awl-arm/1`) in
-//! [`crate::io::arm`].
+//! [`crate::kinematics::arm_file`].
 //!
 //! Convention: **standard (distal) DH**, as Universal Robots publishes it. Joint `i` (0-based here,
 //! 1-based in the vendors' tables) contributes
@@ -13,8 +13,9 @@
 //! `base` is the frame the controller reports TCP poses in. Joint values `q` are the controller's
 //! joint angles (radians); metres for lengths.
 //!
-//! No I/O here: the arm-file reader is [`crate::io::arm`].
+//! No I/O here: the arm-file reader is [`crate::kinematics::arm_file`].
 
+pub mod arm_file;
 pub mod arms;
 pub mod collision;
 pub mod ik;

@@ -20,8 +20,9 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
 use crate::handeye::chain::{ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
-use crate::io::scan::{LoadedView, Scan, TagSpec, ViewPose, load_view};
+use crate::io::scan::load_view;
 use crate::registration::{IcpLevel, IcpParams, register};
+use crate::scan::{LoadedView, Scan, TagSpec, ViewPose};
 use crate::transform::{adjoint, pose_difference, skew};
 use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views};
 

@@ -1,12 +1,13 @@
 //! Piercing: the workpiece located in the robot base frame from a piercing-time shot ([`locate`]),
 //! targets on the model turned into tool poses there ([`plan`], [`tool`]), each with the error it
-//! may have and whether the tool may go ([`predict`]), and robot programs ([`script`]); plan.json I/O in [`crate::io::plan`].
+//! may have and whether the tool may go ([`predict`]), and robot programs ([`script`]); plan.json I/O in [`crate::pierce::plan_file`].
 //!
 //! Frames: `base` = the robot base (the shot's world frame); `model` = the fused model's frame (the
 //! scan's world frame), where `workpiece.json` gives `T_world_tag`; tool z = the piercing direction.
 
 pub mod locate;
 pub mod plan;
+pub mod plan_file;
 pub mod predict;
 pub mod reach;
 pub mod safety;

@@ -5,10 +5,10 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::io::scan::{Scan, TagSpec};
 use crate::pierce::locate::{LocateParams, Located, locate};
 use crate::pierce::predict::{PredictParams, Prediction, TargetGeometry, Tolerance, predict};
 use crate::pierce::tool::{Stroke, ToolPoses, tool_poses};
+use crate::scan::{Scan, TagSpec};
 use crate::workpiece::{SurfaceModel, SurfaceTarget, TargetParams, TargetSpec};
 
 /// Which direction the tool pierces along.

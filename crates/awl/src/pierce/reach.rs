@@ -13,14 +13,14 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
-use crate::io::scan::Scan;
 use crate::kinematics::collision::{BodyParams, Clearance, CollisionParams, Obstacles};
 use crate::kinematics::{
     Arm, Branch, IkParams, Joints, LineParams, Margins, SpinParams, best_spin_with, ik, wrap_to_pi,
 };
 use crate::pierce::plan::{PiercePlan, PlannedTarget};
 use crate::pierce::tool::ToolPoses;
-use crate::workpiece::file::FloorPlane;
+use crate::scan::Scan;
+use crate::segment::FloorPlane;
 
 /// Settings of [`plan_reach`].
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -10,16 +10,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaterni
 
 use crate::error::{Error, Result};
 
-/// The three tool poses of one target, base frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ToolPoses {
-    /// `T_base_approach`: on the axis, before the surface.
-    pub approach: Isometry3<f64>,
-    /// `T_base_pierce`: on the axis, `depth_m` into the surface.
-    pub pierce: Isometry3<f64>,
-    /// `T_base_retract`: back out along the axis.
-    pub retract: Isometry3<f64>,
-}
+pub use crate::kinematics::line::ToolPoses;
 
 /// The distances along the axis, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -16,7 +16,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::VoxelParams;
 use crate::filter::voxel_merge::VoxelMerge;
-use crate::io::scan::Scan;
+use crate::scan::Scan;
 use crate::smooth::mls;
 
 /// Stage notifications for a progress display: `(stage name, stages done, stages in all)`.

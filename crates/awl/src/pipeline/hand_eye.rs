@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::handeye::chain::{
     ChainEstimate, ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain_observed,
 };
-use crate::io::scan::{Scan, ViewPose};
+use crate::scan::{Scan, ViewPose};
 use crate::transform::{Rows, rows_from_isometry};
 
 /// Settings of the hand-eye refinement.
@@ -319,7 +319,7 @@ mod tests {
     use serde_json::{Map, json};
 
     use super::*;
-    use crate::io::scan::{ViewData, ViewSpec};
+    use crate::scan::{ViewData, ViewSpec};
 
     /// A scan of `stops` stops of 2 views whose flange turns 30 deg about `axis(stop)` between
     /// them, registered exactly (`T_world_camera` = the recorded chain with the true hand-eye).

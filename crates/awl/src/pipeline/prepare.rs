@@ -26,9 +26,10 @@ use crate::cloud::{PointCloud, retain_at};
 use crate::error::Result;
 use crate::filter::outlier::statistical;
 use crate::filter::voxel::downsample;
-use crate::io::scan::{LoadedView, Scan, load_view_every_nth};
+use crate::io::scan::load_view_every_nth;
 use crate::octahedral::{PackedNormal, pack_all, unpack_normal};
 use crate::organized::PixelGrid;
+use crate::scan::{LoadedView, Scan};
 use crate::segment::{PlaneParams, fit_plane_ransac};
 
 /// A view ready for registration.
@@ -466,7 +467,8 @@ fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<Prepar
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::scan::{ViewData, read_scan};
+    use crate::io::scan::read_scan;
+    use crate::scan::ViewData;
     use crate::sim::{SceneKind, SimParams, simulate, write_simulation};
 
     /// A view's measured points read again by their recipe are those the view would hold: the

@@ -143,12 +143,13 @@ pub(crate) fn register_as_prepared(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::io::scan::{ViewData, read_scan};
+    use crate::io::scan::read_scan;
     use crate::pipeline::config::FuseConfig;
     use crate::pipeline::fuse::world_parts;
     use crate::pipeline::multiview::register_views;
     use crate::pipeline::prepare::prepare;
     use crate::pipeline::report::ViewStatus;
+    use crate::scan::ViewData;
     use crate::sim::{SceneKind, SimParams, simulate, write_simulation};
 
     /// The same views, order, poses and reports as registering all the prepared views, with a view

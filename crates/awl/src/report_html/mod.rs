@@ -7,6 +7,7 @@ pub mod fuse;
 pub mod page;
 pub mod rendered;
 pub mod viewer;
+pub mod write;
 
 #[cfg(test)]
 mod evaluate_tests;

@@ -22,12 +22,13 @@ use crate::image::{ColorImage, DepthImage};
 use crate::io::image::{
     ColorFileKind, color_file_kind, read_color_image, read_depth_png, write_color_png, write_depth_png,
 };
-use crate::io::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec, write_scan};
+use crate::io::scan::write_scan;
 use crate::io::{write_atomic, write_folder_atomically};
 use crate::rosbag::cdr::{self, CameraInfo};
 use crate::rosbag::still::{FramePose, SkipReason, StillParams, find_views};
 use crate::rosbag::tf::{LookupError, TfBuffer};
 use crate::rosbag::{Bag, BagMessage};
+use crate::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::transform::pose_difference;
 
 const IMAGE: &str = "sensor_msgs/msg/Image";

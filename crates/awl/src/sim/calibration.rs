@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::handeye::HandEyePose;
-use crate::sim::random::{Stream, normal_perturbation, rng, uniform, unit_vector};
+use crate::random::{Stream, normal_perturbation, rng, uniform, unit_vector};
 use crate::sim::simulated_camera;
 
 /// Side of the simulated calibration tag, metres.

@@ -21,13 +21,13 @@ use serde_json::{Map, Value, json};
 
 use crate::camera::DepthCamera;
 use crate::error::{Error, Result};
-use crate::io::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::io::truth::{Truth, TruthView};
 use crate::mesh::TriMesh;
+use crate::random::{Stream, rng};
+use crate::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::sim::calibration::{CalibrationMotion, ViewSpread, camera_pose, fixed_target, square_in_view};
 use crate::sim::layout::{FLOOR, FLOOR_HALF_M};
 use crate::sim::noise::DepthNoise;
-use crate::sim::random::{Stream, rng};
 use crate::sim::render::Renderer;
 use crate::sim::rig::{BASE_HEIGHT, hand_eye_error, pose_errors, true_ee_from_camera};
 use crate::sim::shapes::cuboid;

@@ -6,7 +6,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::error::Result;
 use crate::mesh::TriMesh;
-use crate::sim::random::{Stream, rng, uniform};
+use crate::random::{Stream, rng, uniform};
 use crate::sim::shapes::cuboid;
 use crate::sim::tag36h11::tag36h11_bitmap;
 use crate::sim::workpiece::Workpiece;

@@ -12,7 +12,6 @@ pub mod calibration;
 pub mod capture;
 mod layout;
 mod noise;
-pub(crate) mod random;
 mod record;
 mod render;
 mod rig;
@@ -25,12 +24,15 @@ mod workpiece;
 mod world;
 mod write;
 
+use std::sync::Arc;
+
 use crate::camera::{DepthCamera, Intrinsics};
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
-use crate::io::scan::Scan;
 use crate::io::truth::Truth;
 use crate::mesh::TriMesh;
+use crate::random;
+use crate::scan::{Scan, ViewData};
 
 pub use noise::axial_sigma_m;
 pub use tag36h11::{TAG_BORDER_MODULES, TAG_MODULES, TAG36H11_EMBEDDED, tag36h11_bitmap};
@@ -218,6 +220,17 @@ impl Simulation {
     /// Number of depth pixels with a return, over all views.
     pub fn depth_points(&self) -> usize {
         self.views.iter().map(|v| v.depth.data.iter().filter(|&&d| d > 0).count()).sum()
+    }
+
+    /// The scan with each view's images held in memory ([`ViewData::Images`]) instead of the file
+    /// names [`write_simulation`] would write them to: fused as it is, without touching the disk.
+    pub fn in_memory_scan(&self) -> Scan {
+        let mut scan = self.scan.clone();
+        for (spec, view) in scan.views.iter_mut().zip(&self.views) {
+            let color = spec.data.has_color().then(|| Arc::new(view.color.clone()));
+            spec.data = ViewData::Images { depth: Arc::new(view.depth.clone()), color };
+        }
+        scan
     }
 }
 

@@ -8,7 +8,7 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::camera::DepthCamera;
-use crate::sim::random::{Stream, normal, rng, uniform};
+use crate::random::{Stream, normal, rng, uniform};
 
 /// The model's axial depth noise (one sigma, metres) at depth `z_m` and incidence cosine
 /// `cos_incidence`, for a noise level of scale `level_scale` (none 0, low 0.5, realistic 1, harsh 2).

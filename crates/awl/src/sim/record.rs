@@ -8,8 +8,8 @@ use serde_json::{Map, Value, json};
 
 use crate::camera::DepthCamera;
 use crate::error::Result;
-use crate::io::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::io::truth::{Truth, TruthTarget, TruthView};
+use crate::scan::{Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::sim::layout::scan_world;
 use crate::sim::noise::DepthNoise;
 use crate::sim::rig::{RigView, hand_eye_error, plan_scan, pose_errors, stop_count, true_ee_from_camera};

@@ -7,9 +7,9 @@ use rayon::prelude::*;
 
 use crate::camera::DepthCamera;
 use crate::image::{ColorImage, DepthImage};
+use crate::random::{Stream, normal, rng};
 use crate::sim::LabelImage;
 use crate::sim::noise::{CleanView, DepthNoise, RowContext, noisy_row};
-use crate::sim::random::{Stream, normal, rng};
 use crate::sim::shade::{Gamma, Lighting, radiance};
 use crate::sim::world::{Hit, World};
 

@@ -5,8 +5,8 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand_chacha::ChaCha8Rng;
 
+use crate::random::{Stream, normal, normal_perturbation, rng, uniform, unit_vector};
 use crate::sim::layout::ScanLayout;
-use crate::sim::random::{Stream, normal, normal_perturbation, rng, uniform, unit_vector};
 
 /// Height of the manipulator's base frame above the floor (arm mounted on the mobile platform), metres.
 pub(crate) const BASE_HEIGHT: f64 = 0.45;

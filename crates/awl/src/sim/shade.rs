@@ -3,7 +3,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::sim::random::hash4;
+use crate::random::hash4;
 use crate::sim::world::{Hit, Texture, World};
 
 /// sRGB value (0..255) of the tag's black modules before shading.

@@ -7,10 +7,10 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::camera::DepthCamera;
 use crate::error::{Error, Result};
+use crate::random::{Stream, normal, rng, uniform};
 use crate::sim::LABEL_OTHER;
 use crate::sim::ShotPose;
 use crate::sim::layout::{FLOOR, FLOOR_HALF_M, WORKPIECE, tag_print, yaw_at};
-use crate::sim::random::{Stream, normal, rng, uniform};
 use crate::sim::rig::{BASE_HEIGHT, RigView, look_at, true_ee_from_camera};
 use crate::sim::shapes::quad;
 use crate::sim::tagview::observe_tag;

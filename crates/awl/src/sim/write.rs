@@ -9,9 +9,10 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::io::image::{write_color_png, write_depth_png};
 use crate::io::ply::write_ply_mesh;
-use crate::io::scan::{ViewData, write_scan};
+use crate::io::scan::write_scan;
 use crate::io::truth::write_truth;
 use crate::io::{write_atomic, write_folder_atomically};
+use crate::scan::ViewData;
 use crate::sim::{LabelImage, Simulation};
 
 fn label_png(image: &LabelImage) -> Result<Vec<u8>> {

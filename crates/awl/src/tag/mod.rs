@@ -31,6 +31,9 @@ mod ippe;
 mod pose;
 mod report;
 
+/// The tag family awl detects (`tag.family` in scan.json and capture files).
+pub const SUPPORTED_FAMILY: &str = "tag36h11";
+
 pub use depth::{DepthScore, DepthScores, MIN_DEPTH_POINTS, score_depth};
 pub use detect::{AprilTagDetector, DetectorParams, GrayView, TagDetection, TagDetector};
 pub use pose::{TagPose, TagPoseSolution, estimate_tag_pose, tag_corners_m};

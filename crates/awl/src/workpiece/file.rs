@@ -1,5 +1,5 @@
 //! The workpiece record `awl fuse` leaves beside the model (`workpiece.json`, format
-//! `awl-workpiece/1`, read and written by [`crate::io::workpiece`]): the model file, where the tag
+//! `awl-workpiece/1`, read and written by [`crate::workpiece::json`]): the model file, where the tag
 //! is on it (`T_world_tag`, world = the model's frame), the tag spec and every detection.
 
 use nalgebra::{Isometry3, Vector3};
@@ -7,8 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::io::scan::{Scan, TagSpec};
 use crate::pipeline::FuseOutput;
+use crate::scan::{Scan, TagSpec};
+pub use crate::segment::FloorPlane;
 use crate::workpiece::refine::{RefineParams, Refinement, refine_on_model};
 use crate::workpiece::tag_pose::{TagEstimateParams, TagSearch, ViewTagDetection, search_tags};
 
@@ -59,31 +60,9 @@ pub struct Workpiece {
     pub warnings: Vec<String>,
 }
 
-/// A plane `normal·p + offset_m = 0` (unit `normal`, pointing up for a floor), model frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FloorPlane {
-    /// Unit normal, up.
-    pub normal: Vector3<f64>,
-    /// `d` in `normal·p + d = 0`, metres.
-    pub offset_m: f64,
-}
-
-impl FloorPlane {
-    /// The plane from a normal of any length; `None` when it is zero or not finite.
-    pub fn new(normal: Vector3<f64>, offset_m: f64) -> Option<Self> {
-        let n = normal.norm();
-        (n.is_finite() && n > 1e-9 && offset_m.is_finite()).then(|| Self { normal: normal / n, offset_m: offset_m / n })
-    }
-
-    /// The floor `fuse` removed (its report), if it found one.
-    pub fn of_fuse(out: &FuseOutput) -> Option<Self> {
-        out.report.floor.as_ref().and_then(|f| Self::new(Vector3::from(f.normal), f.offset_m))
-    }
-
-    /// Signed height of `p` above the plane, metres.
-    pub fn height(&self, p: &nalgebra::Point3<f64>) -> f64 {
-        self.normal.dot(&p.coords) + self.offset_m
-    }
+/// The floor `fuse` removed (its report), if it found one, model frame.
+pub fn floor_of_fuse(out: &FuseOutput) -> Option<FloorPlane> {
+    out.report.floor.as_ref().and_then(|f| FloorPlane::new(Vector3::from(f.normal), f.offset_m))
 }
 
 impl Workpiece {
@@ -148,7 +127,7 @@ pub fn workpiece_from_search(
         views_checked: estimate.views_checked,
         detections: estimate.detections,
         refinement,
-        floor: FloorPlane::of_fuse(out),
+        floor: floor_of_fuse(out),
         hand_eye: out.report.hand_eye.clone(),
         warnings,
     }))

@@ -4,7 +4,7 @@
 //!   (detect, pose with the depth-resolved ambiguity, registered view pose, robust SE(3) mean:
 //!   [`mean`]), then [`refine`]d on the model's points in the tag square.
 //! - [`file`]: the `workpiece.json` record `awl fuse` writes (`awl-workpiece/1`; I/O in
-//!   [`crate::io::workpiece`]).
+//!   [`crate::workpiece::json`]).
 //! - [`targets`] / [`face`]: a point snapped onto the surface, or the centre of the planar face nearest
 //!   a point, with the outward normal and the piercing axis; [`target_spec`] parses target strings.
 //!
@@ -13,6 +13,7 @@
 
 pub mod face;
 pub mod file;
+pub mod json;
 pub mod mean;
 pub mod refine;
 pub mod tag_pose;

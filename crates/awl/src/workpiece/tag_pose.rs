@@ -9,14 +9,13 @@ use serde::{Deserialize, Serialize};
 use crate::camera::{Intrinsics, PixelRect};
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
-use crate::io::scan::{Scan, TagSpec, ViewData, load_depth_points, read_color};
+use crate::io::scan::{load_depth_points, read_view_color};
+use crate::scan::{Scan, TagSpec};
+use crate::tag::SUPPORTED_FAMILY;
 use crate::tag::{
     AprilTagDetector, DetectorParams, TagDetection, TagDetector, TagPoseSolution, estimate_tag_pose, score_depth,
 };
 use crate::workpiece::mean::{MeanParams, robust_mean};
-
-/// The only tag family the detector decodes.
-pub const SUPPORTED_FAMILY: &str = "tag36h11";
 
 /// Parameters of [`estimate_world_from_tag`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -392,12 +391,14 @@ fn search_views(
     let mut detector = AprilTagDetector::new(detector_params)?;
     let (mut views, mut faces) = (Vec::new(), Vec::new());
     for (index, view) in scan.views.iter().enumerate() {
-        let ViewData::Depth { color: Some(color), .. } = &view.data else { continue };
+        if !view.data.has_color() {
+            continue;
+        }
         let seed = scan.world_from_camera(index).ok();
         if seed.is_some_and(|seed| behind_a_face(&faces, &seed)) {
             continue;
         }
-        let image = read_color(scan, camera, color)?;
+        let Some(image) = read_view_color(scan, index)? else { continue };
         let found = detector.detect_color(&image)?;
         drop(image);
         let corners: Vec<[f64; 2]> = found.iter().filter(|d| d.id == tag.id).flat_map(|d| d.corners_px).collect();

@@ -37,10 +37,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
+use crate::segment::FloorPlane;
 use crate::smooth::{quadric_coefficients, quadric_normal, tangent_frame};
 use crate::spatial::KdIndex;
 use crate::workpiece::face::FaceParams;
-use crate::workpiece::file::FloorPlane;
 use crate::workpiece::target_spec::TargetSpec;
 
 /// Parameters of target placement.

@@ -21,11 +21,13 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::io::scan::{TagSpec, parse_json, pose_field};
+use crate::io::scan::{parse_json, pose_field};
 use crate::io::{read_bytes, write_atomic};
 use crate::pipeline::HandEyeReport;
+use crate::scan::TagSpec;
+use crate::segment::FloorPlane;
 use crate::transform::{Rows, rows_from_isometry};
-use crate::workpiece::file::{FloorPlane, WORKPIECE_FORMAT, Workpiece};
+use crate::workpiece::file::{WORKPIECE_FORMAT, Workpiece};
 use crate::workpiece::refine::Refinement;
 use crate::workpiece::tag_pose::ViewTagDetection;
 use crate::workpiece::target_spec::{TargetSpec, parse_targets};
