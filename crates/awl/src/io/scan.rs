@@ -368,22 +368,20 @@ fn view_depth_every_nth<'a>(
     data: &ViewData,
     step: usize,
 ) -> Result<Option<(&'a DepthCamera, DepthImage)>> {
-    if let ViewData::Points { .. } = data {
-        return Ok(None);
-    }
-    let camera = scan.depth_camera()?;
-    let image = match data {
+    let (camera, image) = match data {
+        ViewData::Points { .. } => return Ok(None),
         ViewData::Depth { depth, .. } => {
+            let camera = scan.depth_camera()?;
             let path = scan.dir.join(depth);
             let (image, (width, height)) = read_depth_png_every_nth(&path, step)?;
             check_size(&path, camera, width, height)?;
-            image
+            (camera, image)
         }
         ViewData::Images { depth, .. } => {
+            let camera = scan.depth_camera()?;
             check_size(&Scan::manifest_path(&scan.dir), camera, depth.width, depth.height)?;
-            if step <= 1 { DepthImage::clone(depth) } else { depth.every_nth(step) }
+            (camera, if step <= 1 { DepthImage::clone(depth) } else { depth.every_nth(step) })
         }
-        ViewData::Points { .. } => return Ok(None),
     };
     Ok(Some((camera, image)))
 }
