@@ -150,6 +150,35 @@ fn bad_config_values_name_their_key_and_write_nothing() {
 }
 
 #[test]
+fn print_config_round_trips_through_config() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (preset, other) in [("fast", "accurate"), ("accurate", "fast")] {
+        let printed = awl(&["fuse", "--print-config", "--preset", preset]);
+        assert!(printed.status.success(), "{}", String::from_utf8_lossy(&printed.stderr));
+        let text = String::from_utf8(printed.stdout).expect("utf-8");
+        assert!(text.contains("# Per-view voxel down-sampling.\n[view_voxel]"), "a comment per table:\n{text}");
+        let path = dir.path().join(format!("{preset}.toml"));
+        std::fs::write(&path, &text).expect("write config");
+        // given back over the other preset, every key comes from the file
+        let again = awl(&["fuse", "--print-config", "--preset", other, "--config", path.to_str().expect("utf-8")]);
+        assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+        assert!(again.stdout == text.as_bytes(), "{preset}: the printed config read back resolves to another config");
+    }
+    // an optional stage switched off in TOML, and the error for `true`
+    let path = dir.path().join("off.toml");
+    std::fs::write(&path, "smoothing = false\n").expect("write config");
+    let out = awl(&["fuse", "--print-config", "--config", path.to_str().expect("utf-8")]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("\nsmoothing = false\n"), "smoothing off");
+    std::fs::write(&path, "smoothing = true\n").expect("write config");
+    let out = awl(&["fuse", "--print-config", "--config", path.to_str().expect("utf-8")]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("off.toml") && e.contains("false to switch it off"), "{e}");
+    // without --print-config the scan and the output folder are required
+    let out = awl(&["fuse"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("SCAN"), "scan required");
+}
+
+#[test]
 fn a_json_config_goes_over_the_preset_and_null_turns_a_stage_off() {
     let dir = tempfile::tempdir().expect("tempdir");
     let scan = scan(dir.path(), "scan");
@@ -168,7 +197,7 @@ fn a_json_config_goes_over_the_preset_and_null_turns_a_stage_off() {
     assert_eq!(c["pixel_step"], 2, "the preset's own keys stay");
     assert_eq!(c["registration"]["joint_levels"], serde_json::json!([]));
     assert_eq!(c["merge_voxel"]["voxel_size_m"], 0.005, "the file's key");
-    assert!(c["smoothing"].is_null(), "null turned MLS off");
+    assert_eq!(c["smoothing"], false, "null turned MLS off, written `false` as TOML writes it");
     let stages: Vec<&str> = r["stages"].as_array().expect("stages").iter().filter_map(|s| s["name"].as_str()).collect();
     assert!(!stages.contains(&"mls"), "{stages:?}");
     // the same file over the default preset keeps the default's keys

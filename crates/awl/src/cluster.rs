@@ -33,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::spatial::cells::CellGrid as Grid;
 
 /// Parameters of [`dbscan`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DbscanParams {
     /// Neighbourhood radius (inclusive), metres. Default 0.01: a few times the spacing of a cloud

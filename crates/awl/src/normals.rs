@@ -23,13 +23,15 @@ use crate::spatial::knn_map;
 pub const COLLINEAR_RATIO: f64 = 1e-6;
 
 /// How each point's neighbourhood is chosen.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct NormalParams {
     /// At most this many nearest points, the point itself included (default 20, at least 3).
     pub neighbors: usize,
     /// When set, only those of the `neighbors` nearest points within this distance, metres
-    /// (default `Some(0.01)`: Open3D's hybrid search). `None` keeps all `neighbors` points.
+    /// (default 0.01: Open3D's hybrid search); `false` keeps all `neighbors` points.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub radius_m: Option<f64>,
 }
 

@@ -37,7 +37,7 @@ const REFINE_ROUNDS: usize = 50;
 const CHUNK: usize = 4096;
 
 /// Parameters of [`fit_plane_ransac`] (and of each plane in [`remove_floor`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlaneParams {
     /// A point is an inlier when its distance to the plane is at most this, metres. Default 0.01
@@ -49,7 +49,9 @@ pub struct PlaneParams {
     /// Seed of the ChaCha8 generator. Default 0.
     pub seed: u64,
     /// Only planes whose normal is within this angle of `up` count (hypotheses and refit), radians
-    /// (`None`: any plane). Default 15 degrees: floors, not the walls or sides of the object.
+    /// (`false`: any plane). Default 15 degrees: floors, not the walls or sides of the object.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub max_tilt_rad: Option<f64>,
     /// The world's up direction (need not be unit). Normals are returned pointing along it. Default
     /// `[0, 0, 1]`, world z.
@@ -89,7 +91,7 @@ impl PlaneFit {
 }
 
 /// Parameters of [`remove_floor`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FloorParams {
     /// The RANSAC settings of each candidate plane; `distance_m` is also the band above the floor that is

@@ -46,7 +46,7 @@ use crate::spatial::cells::CellGrid;
 pub const MIN_PIVOT_RATIO: f64 = 1e-6;
 
 /// MLS parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MlsParams {
     /// Neighbourhood radius, metres; also the Gaussian weight's width (default 0.006).

@@ -90,14 +90,15 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     ));
 
     let scan = read_scan(&scan_dir)?;
-    let (fused, tags) = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    let job = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    let fused = &job.fused;
     say(format!(
         "[2/3] fused {} views into {} points in {:.2} s",
         fused.report.views.len(),
         fused.report.model_points,
         fused.report.seconds
     ));
-    for w in &fused.report.warnings {
+    for w in job.warnings() {
         say(format!("      warning: {w}"));
     }
 
@@ -112,10 +113,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
-    let (fuse_html, workpiece) = super::fuse::write_outputs(&fuse_dir, tags.as_ref(), &fused, Some(rmse_m))?;
-    for w in super::fuse::workpiece_warnings(workpiece.as_ref()) {
-        say(format!("      warning: {w}"));
-    }
+    let fuse_html = super::fuse::write_outputs(&fuse_dir, &job, Some(rmse_m))?;
     let model_path = fuse_dir.join("model.ply");
     let inputs = [model_path.as_path(), cad_path.as_path(), truth_path.as_path()];
     let eval_html = super::evaluate::write_outputs(

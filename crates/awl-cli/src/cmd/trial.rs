@@ -160,10 +160,10 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     let scan_dir = args.output.join("scan");
     write_simulation(&scan_dir, &sim, args.force)?;
     let scan = read_scan(&scan_dir)?;
-    let (fused, tags) = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
-    let (_, workpiece) = super::fuse::write_outputs(&args.output.join("fuse"), tags.as_ref(), &fused, None)?;
-    let workpiece = workpiece.context("the simulated scan declares no tag")?;
-    let wp = prepare_workpiece(scene, &workpiece, &sim.truth, &sim.cad, &fused.model, args.target.as_deref())
+    let job = super::fuse::fuse_with_progress(&scan, &FuseConfig::default(), args.quiet)?;
+    super::fuse::write_outputs(&args.output.join("fuse"), &job, None)?;
+    let (fused, workpiece) = (&job.fused, job.workpiece.as_ref().context("the simulated scan declares no tag")?);
+    let wp = prepare_workpiece(scene, workpiece, &sim.truth, &sim.cad, &fused.model, args.target.as_deref())
         .context("the workpiece on the model")?;
     say(format!(
         "[2/3] scanned and fused the {} ({} views, {} points, {:.1} s); target `{}` picked as {}",

@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::spatial::{KdIndex, KnnTable, Neighbor, knn_map};
 
 /// Statistical outlier removal parameters (Open3D's `nb_neighbors`, `std_ratio`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SorParams {
     /// Nearest points per point, the point itself INCLUDED (default 20, at least 2: with 1 every

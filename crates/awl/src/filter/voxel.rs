@@ -38,7 +38,7 @@ const KEY_SLACK: f64 = 1e-15;
 const NORMAL_CANCEL_RATIO: f64 = 1e-6;
 
 /// Voxel-grid parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct VoxelParams {
     /// Edge of a voxel, metres (default 0.002: a little under the depth noise of a structured-light

@@ -51,16 +51,16 @@ pub enum StopPrior {
 }
 
 /// Measurement noise of a view, 1-sigma per axis.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ChainNoise {
     /// The arm's pose error at the flange (kinematics), metres.
     pub arm_m: f64,
-    /// ... radians.
+    /// The arm's pose error at the flange, radians.
     pub arm_rad: f64,
     /// The registered camera pose's error, metres.
     pub camera_m: f64,
-    /// ... radians.
+    /// The registered camera pose's error, radians.
     pub camera_rad: f64,
 }
 

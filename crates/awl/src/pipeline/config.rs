@@ -13,7 +13,7 @@ use crate::segment::{FloorParams, PlaneParams};
 use crate::smooth::MlsParams;
 
 /// What to do with a view whose registration the rule rejects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum RejectPolicy {
     /// Leave the view out of the model (default: a wrong pose never reaches the model).
@@ -23,7 +23,7 @@ pub enum RejectPolicy {
 }
 
 /// When a view's registration is accepted. Every check must pass; the first failing one is reported.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct AcceptanceRule {
     /// The finest ICP level must have converged. Default true.
@@ -56,7 +56,7 @@ impl Default for AcceptanceRule {
 }
 
 /// Registration of the views.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RegistrationConfig {
     /// ICP of each view against the growing model. Default: three levels from 15 mm voxels and a
@@ -96,7 +96,7 @@ pub struct RegistrationConfig {
     /// (box seed 4: 1.16 / 0.94 / 0.64 mm) for 16 / 16 / 20 s of registration in all
     /// (BENCHMARKS.md 43).
     pub joint_convergence_translation_m: f64,
-    /// ... nor rotates more than this, radians. Default 3e-5.
+    /// A joint level converges when no view's step rotates more than this either, radians. Default 3e-5.
     pub joint_convergence_rotation_rad: f64,
 }
 
@@ -140,7 +140,7 @@ impl RegistrationConfig {
 }
 
 /// Isolation of the object: floor removal and clustering.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct IsolateConfig {
     /// Remove the floor (the lowest large plane perpendicular to world z). Default true.
@@ -155,6 +155,8 @@ pub struct IsolateConfig {
     pub dbscan: DbscanParams,
     /// Keep the cluster holding the model point nearest this world point (metres) instead of the
     /// largest cluster.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<[f64; 3]>")]
     pub seed_point: Option<[f64; 3]>,
 }
 
@@ -171,13 +173,15 @@ impl Default for IsolateConfig {
 }
 
 /// The region of interest: the object is where the cameras look.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RoiConfig {
     /// Keep only points within this distance of the point the cameras look at (the least-squares
-    /// intersection of the views' optical axes, from the recorded poses), metres; `None` keeps
+    /// intersection of the views' optical axes, from the recorded poses), metres; `false` keeps
     /// everything. Default 1.0: the simulated 50 cm workpieces and their surroundings; raise it
     /// for bigger workpieces. The focus point found is written in the report.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub radius_m: Option<f64>,
 }
 
@@ -188,7 +192,7 @@ impl Default for RoiConfig {
 }
 
 /// Every parameter of `awl fuse`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FuseConfig {
     /// Region of interest around the point the cameras look at.
@@ -210,19 +214,25 @@ pub struct FuseConfig {
     pub pixel_step: usize,
     /// Drop points seen at more than this angle between their normal and the ray to the camera,
     /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
-    /// noisiest. `None` keeps all. Default 80 degrees.
+    /// noisiest. `false` keeps all. Default 80 degrees.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub max_incidence_rad: Option<f64>,
     /// Register the depth views on copies of their points moved along their rays onto the plane
     /// of their pixel-window neighbours (the normals' neighbourhoods, with their normal), each by
-    /// at most this many metres; the model is still made of the measured points. `None` registers
+    /// at most this many metres; the model is still made of the measured points. `false` registers
     /// the measured points. Default 0.005: on 8 simulated scans, with the joint's threshold below,
     /// model RMSE 0.709 -> 0.599 mm (mean; every scan better but box seed 4, 0.61 -> 0.64 mm) in
     /// the same registration time (BENCHMARKS.md 42, 43). Views given as clouds (or cleaned with
     /// `pixel_window = 0`) are not smoothed.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub registration_smoothing_m: Option<f64>,
     /// Snap the normals of each view's dominant horizontal plane to the plane's fitted normal
-    /// before registration; `None` to keep per-point normals. Default: RANSAC, 10 mm, 300
+    /// before registration; `false` to keep per-point normals. Default: RANSAC, 10 mm, 300
     /// hypotheses, within 15 degrees of world z.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<PlaneParams>")]
     pub snap_plane: Option<PlaneParams>,
     /// Registration.
     pub registration: RegistrationConfig,
@@ -230,9 +240,13 @@ pub struct FuseConfig {
     pub merge_voxel: VoxelParams,
     /// Floor removal and clustering.
     pub isolate: IsolateConfig,
-    /// MLS smoothing of the model; `None` to skip. Default 6 mm radius, quadratic.
+    /// MLS smoothing of the model; `false` to skip. Default 6 mm radius, quadratic.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<MlsParams>")]
     pub smoothing: Option<MlsParams>,
-    /// The hand-eye refined from the registered base stops (`pipeline::hand_eye`); `None` to skip.
+    /// The hand-eye refined from the registered base stops (`pipeline::hand_eye`); `false` to skip.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<HandEyeConfig>")]
     pub hand_eye: Option<HandEyeConfig>,
 }
 
@@ -325,10 +339,9 @@ impl FuseConfig {
     }
 
     /// The config a partial document describes (e.g. a TOML file turned into a JSON value): each
-    /// key it gives replaces the same key of [`FuseConfig::default`], tables merged key by key,
-    /// lists and values replaced whole. So `[registration.icp]` with one key keeps the fuse's own ICP
-    /// levels and thresholds, not [`IcpParams::default`]'s (a sub-table's type default is not the
-    /// fuse's default wherever the fuse tunes it).
+    /// key it gives replaces the same key of [`FuseConfig::default`] (an RFC 7396 merge: tables
+    /// key by key, lists and values whole), so `[registration.icp]` with one key keeps the fuse's
+    /// own ICP levels. `false` (or JSON's `null`) switches an optional stage off.
     ///
     /// # Errors
     /// [`Error::Invalid`] naming the unknown key or the value of the wrong type.
@@ -343,8 +356,118 @@ impl FuseConfig {
     pub fn with_overrides_on(base: Self, overrides: &serde_json::Value) -> Result<Self> {
         let mut merged =
             serde_json::to_value(base).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
-        merge(&mut merged, overrides);
+        // a merge patch's null deletes its key; here it switches the stage off, as `false` does
+        json_patch::merge(&mut merged, &null_as_false(overrides));
         serde_json::from_value(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
+    }
+
+    /// A TOML document's keys over `base` ([`FuseConfig::with_overrides_on`]).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the line and key of a syntax error, an unknown key, a wrong type
+    /// or a number that is not finite.
+    pub fn from_toml_on(base: Self, text: &str) -> Result<Self> {
+        // parsed once as the config itself for messages with the line and key
+        let _: Self = toml::from_str(text).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        let document: toml::Value = toml::from_str(text).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        if let Some((key, v)) = non_finite(&document, "") {
+            return Err(Error::invalid(key, format!("{v} is not a finite number")));
+        }
+        let document = serde_json::to_value(document).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        Self::with_overrides_on(base, &document)
+    }
+
+    /// A JSON document's keys over `base` ([`FuseConfig::with_overrides_on`]).
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming a syntax error, an unknown key or a wrong type.
+    pub fn from_json_on(base: Self, text: &str) -> Result<Self> {
+        let document: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        Self::with_overrides_on(base, &document)
+    }
+
+    /// The whole config as TOML, each key and table after a comment: the first sentence of its
+    /// doc comment. Read back by [`FuseConfig::from_toml_on`], it gives this config.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] when the config does not serialize (a number that is not finite).
+    pub fn documented_toml(&self) -> Result<String> {
+        let text = toml::to_string(self).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        let mut doc: toml_edit::DocumentMut =
+            text.parse().map_err(|e: toml_edit::TomlError| Error::invalid("fuse config", e.to_string()))?;
+        let schema = serde_json::to_value(schemars::schema_for!(FuseConfig))
+            .map_err(|e| Error::invalid("fuse config schema", e.to_string()))?;
+        document_table(doc.as_table_mut(), &schema, &schema);
+        Ok(doc.to_string())
+    }
+}
+
+/// `value` with every JSON `null` replaced by `false` (both switch an optional stage off).
+fn null_as_false(value: &serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match value {
+        Value::Null => Value::Bool(false),
+        Value::Object(map) => Value::Object(map.iter().map(|(k, v)| (k.clone(), null_as_false(v))).collect()),
+        Value::Array(items) => Value::Array(items.iter().map(null_as_false).collect()),
+        other => other.clone(),
+    }
+}
+
+/// The first number of `value` that is NaN or infinite (JSON, which the merge goes through, has
+/// neither), with its dotted key.
+fn non_finite(value: &toml::Value, key: &str) -> Option<(String, f64)> {
+    let child = |k: &str| if key.is_empty() { k.to_string() } else { format!("{key}.{k}") };
+    match value {
+        toml::Value::Float(v) if !v.is_finite() => Some((key.to_string(), *v)),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite(v, &child(k))),
+        toml::Value::Array(a) => a.iter().enumerate().find_map(|(i, v)| non_finite(v, &format!("{key}[{i}]"))),
+        _ => None,
+    }
+}
+
+/// The object schema `schema` stands for: its `$ref` resolved in `root`'s `$defs`, through an
+/// `anyOf` (an optional setting) to its first object member.
+fn resolve<'a>(schema: &'a serde_json::Value, root: &'a serde_json::Value) -> &'a serde_json::Value {
+    if let Some(name) = schema.get("$ref").and_then(|r| r.as_str()).and_then(|r| r.strip_prefix("#/$defs/")) {
+        return root.get("$defs").and_then(|d| d.get(name)).map_or(schema, |s| resolve(s, root));
+    }
+    match schema.get("anyOf").and_then(|a| a.as_array()) {
+        Some(members) => {
+            members.iter().map(|m| resolve(m, root)).find(|m| m.get("properties").is_some()).unwrap_or(schema)
+        }
+        None => schema,
+    }
+}
+
+/// A doc comment's first sentence, as one `# ` line.
+fn comment_of(schema: &serde_json::Value) -> Option<String> {
+    let text = schema.get("description")?.as_str()?.replace('\n', " ");
+    let end = text.find(". ").map_or(text.len(), |i| i + 1);
+    Some(format!("# {}\n", text[..end].trim()))
+}
+
+/// Puts each key's comment before it, recursing into tables and arrays of tables.
+fn document_table(table: &mut toml_edit::Table, schema: &serde_json::Value, root: &serde_json::Value) {
+    let schema = resolve(schema, root);
+    let Some(properties) = schema.get("properties") else { return };
+    for (mut key, item) in table.iter_mut() {
+        let Some(field) = properties.get(key.get()) else { continue };
+        let comment = comment_of(field).unwrap_or_default();
+        match item {
+            toml_edit::Item::Table(sub) => {
+                sub.decor_mut().set_prefix(format!("\n{comment}"));
+                document_table(sub, field, root);
+            }
+            toml_edit::Item::ArrayOfTables(array) => {
+                let element = resolve(field, root).get("items").unwrap_or(field);
+                for sub in array.iter_mut() {
+                    sub.decor_mut().set_prefix(format!("\n{comment}"));
+                    document_table(sub, element, root);
+                }
+            }
+            _ => key.leaf_decor_mut().set_prefix(comment),
+        }
     }
 }
 
@@ -369,23 +492,6 @@ fn too_many_iterations(value: &serde_json::Value, key: &str) -> Option<(String, 
             items.iter().enumerate().find_map(|(i, v)| too_many_iterations(v, &format!("{key}[{i}]")))
         }
         _ => None,
-    }
-}
-
-/// Writes `over` onto `base`: objects key by key (recursively), anything else replaced.
-fn merge(base: &mut serde_json::Value, over: &serde_json::Value) {
-    match (base, over) {
-        (serde_json::Value::Object(b), serde_json::Value::Object(o)) => {
-            for (key, value) in o {
-                match b.get_mut(key) {
-                    Some(slot) => merge(slot, value),
-                    None => {
-                        b.insert(key.clone(), value.clone());
-                    }
-                }
-            }
-        }
-        (b, o) => *b = o.clone(),
     }
 }
 
@@ -436,6 +542,40 @@ mod tests {
         let alone: FuseConfig =
             serde_json::from_value(json!({"registration": {"icp": {"kernel_scale_ratio": 0.5}}})).expect("parse");
         assert_ne!(alone.registration.icp.levels, FuseConfig::default().registration.icp.levels);
+    }
+
+    #[test]
+    fn the_documented_toml_reads_back_as_the_same_config_and_comments_every_key() {
+        let mut off = FuseConfig::fast();
+        off.smoothing = None;
+        off.isolate.seed_point = Some([0.1, -0.2, 0.3]);
+        off.registration.icp.max_normal_angle_rad = None;
+        for config in [FuseConfig::default(), FuseConfig::fast(), off] {
+            let text = config.documented_toml().expect("toml");
+            // read over the other preset, so that every key must come from the text
+            let back = FuseConfig::from_toml_on(FuseConfig::fast(), &text).expect("read back");
+            assert!(back == config, "round trip changed the config:\n{text}");
+            let back = FuseConfig::from_toml_on(FuseConfig::default(), &text).expect("read back");
+            assert!(back == config, "round trip over the default changed the config");
+            for (i, line) in text.lines().enumerate() {
+                let keyed = !line.starts_with('#') && (line.contains(" = ") || line.starts_with('['));
+                let before = if i == 0 { "" } else { text.lines().nth(i - 1).unwrap_or("") };
+                assert!(!keyed || before.starts_with("# "), "line {} has no comment: {line}", i + 1);
+            }
+        }
+        let text = FuseConfig::default().documented_toml().expect("toml");
+        assert!(text.contains("# MLS smoothing of the model; `false` to skip."), "{text}");
+        assert!(text.contains("\nsmoothing") || text.contains("[smoothing]"), "{text}");
+        let c = FuseConfig::from_toml_on(FuseConfig::default(), "smoothing = false\n[roi]\nradius_m = false\n")
+            .expect("off in TOML");
+        assert_eq!((c.smoothing, c.roi.radius_m), (None, None));
+        let e = FuseConfig::from_toml_on(FuseConfig::default(), "smoothing = true\n").expect_err("true");
+        assert!(e.to_string().contains("false to switch it off"), "{e}");
+        let e = FuseConfig::from_toml_on(FuseConfig::default(), "[view_voxel]\nvoxel_size_m = nan\n").expect_err("nan");
+        assert!(e.to_string().contains("view_voxel.voxel_size_m"), "{e}");
+        let c = FuseConfig::from_json_on(FuseConfig::default(), r#"{"smoothing": null, "hand_eye": false}"#)
+            .expect("JSON off");
+        assert_eq!((c.smoothing, c.hand_eye), (None, None));
     }
 
     #[test]

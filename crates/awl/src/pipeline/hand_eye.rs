@@ -18,20 +18,23 @@ use crate::scan::{Scan, ViewPose};
 use crate::transform::{Rows, rows_from_isometry};
 
 /// Settings of the hand-eye refinement.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct HandEyeConfig {
     /// 1-sigma per axis of the recorded `T_ee_camera`'s translation error, metres. Default 0.002:
     /// a typical calibration is 2-4 mm off in all (issue 54's measurements).
     pub prior_sigma_m: f64,
-    /// ... of its rotation error, radians. Default 0.2 deg (0.23-0.27 deg in all).
+    /// The recorded hand-eye's 1-sigma rotation error, radians. Default 0.2 deg (0.23-0.27 deg
+    /// in all).
     pub prior_sigma_rad: f64,
     /// Each view's noise: the arm's pose error at the flange (default 0.7 mm, 0.07 deg per axis)
     /// and the registered camera pose's (default 0.3 mm, 0.02 deg).
     pub noise: ChainNoise,
     /// 1-sigma per axis of each stop's SLAM base pose error (roll, pitch, yaw in radians; x, y, z in
-    /// metres, base frame); `None`: each stop's base pose is free. Default 0.25, 0.25, 2 deg and
+    /// metres, base frame); `false`: each stop's base pose is free. Default 0.25, 0.25, 2 deg and
     /// 3, 3, 0.5 cm: a base on a level floor errs mostly in x, y and yaw.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<[f64; 6]>")]
     pub stop_sigma: Option<[f64; 6]>,
     /// Within-stop pairs turning less than this do not count as a rotation, radians. Default 5 deg.
     pub min_turn_rad: f64,

@@ -29,7 +29,7 @@ use crate::filter::voxel::{VoxelParams, downsample_cow};
 use crate::spatial::LeafTree;
 
 /// One resolution level of the coarse-to-fine schedule.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IcpLevel {
     /// Voxel size both clouds are down-sampled to at this level, metres (0 = no down-sampling).
@@ -41,7 +41,7 @@ pub struct IcpLevel {
 }
 
 /// Parameters of [`register`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct IcpParams {
     /// Levels, coarse first. Default: 10 mm voxels / 60 mm gate, then 4 / 15, then 2 / 5.
@@ -53,9 +53,13 @@ pub struct IcpParams {
     /// Reject correspondences whose nearest target point lies farther than this many level voxels
     /// along the target's tangent plane (boundary matches, which drag partially overlapping views
     /// toward the overlap). Used at levels with `voxel_m > 0`. Default 1.5.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub max_tangential_voxels: Option<f64>,
     /// Reject correspondences whose normals differ by more than this (either sign), radians.
     /// Used only when the source has normals. Default 60 degrees.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
     pub max_normal_angle_rad: Option<f64>,
     /// The finest level has converged when a step moves less than this, metres; a coarser level
     /// when it moves less than this times its voxel over the finest level's (see

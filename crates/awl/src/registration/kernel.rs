@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 /// A robust kernel; its scale `k` (metres of point-to-plane residual) is set per ICP level.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum Kernel {
     /// Plain least squares: every correspondence weighs 1.
