@@ -239,7 +239,7 @@ mod tests {
     #[test]
     fn validate_names_the_bad_point() {
         let cloud = PointCloud::from_points(vec![Point3::new(0.0, f32::NAN, 0.0)]);
-        let err = cloud.validate("model.ply").unwrap_err().to_string();
+        let err = cloud.validate("model.ply").expect_err("an error").to_string();
         assert!(err.contains("model.ply") && err.contains("point 0"), "{err}");
         // past the first parallel chunk, by both checks; the bounds skip the NaN
         let mut points = vec![Point3::new(1.0, -2.0, 3.0); 40_000];
@@ -247,7 +247,7 @@ mod tests {
         points[40_000 - 2].y = f32::INFINITY;
         points[40_000 - 1].z = f32::NAN;
         let cloud = PointCloud::from_points(points);
-        for err in [cloud.validate("c").unwrap_err(), cloud.validated_bounds("c").unwrap_err()] {
+        for err in [cloud.validate("c").expect_err("an error"), cloud.validated_bounds("c").expect_err("an error")] {
             assert!(err.to_string().contains("point 39998 is not finite"), "{err}");
         }
         let b = cloud.bounds().expect("bounds");

@@ -188,10 +188,10 @@ pub fn visible_samples(
             let p = samples_world.points[i].cast::<f64>();
             views.iter().any(|(world_from_camera, depth)| {
                 let centre = world_from_camera.translation.vector;
-                if let Some(ns) = normals {
-                    if ns[i].cast::<f64>().dot(&(centre - p.coords)) <= 0.0 {
-                        return false;
-                    }
+                if let Some(ns) = normals
+                    && ns[i].cast::<f64>().dot(&(centre - p.coords)) <= 0.0
+                {
+                    return false;
                 }
                 let p_camera = world_from_camera.inverse_transform_point(&p);
                 let Some(px) = camera.project(&p_camera) else { return false };

@@ -122,6 +122,22 @@ pub fn isometry_from_translation_rotvec(t: Vector3<f64>, rotvec: Vector3<f64>) -
     Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(rotvec))
 }
 
+/// The cross-product matrix `[v]x` (`[v]x w = v x w`).
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The adjoint of `a_from_b` for `(ω, v)` perturbations (rotation first):
+/// `a_from_b * exp(ξ) * b_from_a = exp(Ad ξ)`, so a covariance `C` in frame b is `Ad C Adᵀ` in a.
+pub fn adjoint(a_from_b: &Isometry3<f64>) -> Matrix6<f64> {
+    let r = a_from_b.rotation.to_rotation_matrix().into_inner();
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(3, 0).copy_from(&(skew(&a_from_b.translation.vector) * r));
+    ad
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -142,16 +158,16 @@ mod tests {
     fn rejects_scale_shear_reflection_and_bad_last_row() {
         let mut scaled = rows_from_isometry(&Isometry3::identity());
         scaled[0][0] = 1.001;
-        assert!(isometry_from_rows(&scaled).unwrap_err().contains("orthonormal"));
+        assert!(isometry_from_rows(&scaled).expect_err("an error").contains("orthonormal"));
         let mut reflected = rows_from_isometry(&Isometry3::identity());
         reflected[2][2] = -1.0;
-        assert!(isometry_from_rows(&reflected).unwrap_err().contains("determinant"));
+        assert!(isometry_from_rows(&reflected).expect_err("an error").contains("determinant"));
         let mut last = rows_from_isometry(&Isometry3::identity());
         last[3][0] = 0.1;
-        assert!(isometry_from_rows(&last).unwrap_err().contains("last row"));
+        assert!(isometry_from_rows(&last).expect_err("an error").contains("last row"));
         let mut nan = rows_from_isometry(&Isometry3::identity());
         nan[1][3] = f64::NAN;
-        assert!(isometry_from_rows(&nan).unwrap_err().contains("non-finite"));
+        assert!(isometry_from_rows(&nan).expect_err("an error").contains("non-finite"));
     }
 
     /// A rotation rounded to 4 digits (|R^T R - I| ~ 1e-4) is re-orthonormalised, within that
@@ -201,20 +217,4 @@ mod tests {
         let (dt, dr) = pose_difference(&iso, &parsed);
         assert!(dt < 1e-8 && dr < 1e-7, "dt {dt} dr {dr}");
     }
-}
-
-/// The cross-product matrix `[v]x` (`[v]x w = v x w`).
-pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
-/// The adjoint of `a_from_b` for `(ω, v)` perturbations (rotation first):
-/// `a_from_b * exp(ξ) * b_from_a = exp(Ad ξ)`, so a covariance `C` in frame b is `Ad C Adᵀ` in a.
-pub fn adjoint(a_from_b: &Isometry3<f64>) -> Matrix6<f64> {
-    let r = a_from_b.rotation.to_rotation_matrix().into_inner();
-    let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(3, 0).copy_from(&(skew(&a_from_b.translation.vector) * r));
-    ad
 }

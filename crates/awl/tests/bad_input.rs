@@ -93,10 +93,12 @@ fn bad_view_files_name_the_file() {
     let dir = root.path().join("missing");
     fs::create_dir_all(&dir).expect("mkdir");
     fs::write(dir.join("scan.json"), &good).expect("write");
-    let err = read_scan(&dir).and_then(|s| load_view(&s, 0, None)).unwrap_err().to_string();
+    let err = read_scan(&dir).and_then(|s| load_view(&s, 0, None)).expect_err("an error").to_string();
     assert_mentions(&err, &["depth/000000.png", "No such file"]);
 
-    let cases: Vec<(&str, Box<dyn Fn(&Path)>, Vec<&str>)> = vec![
+    // what is broken, how (the view's file given), what the error must name
+    type Case<'a> = (&'a str, Box<dyn Fn(&Path)>, Vec<&'a str>);
+    let cases: Vec<Case> = vec![
         (
             "corrupt PNG",
             Box::new(|p: &Path| fs::write(p, b"\x89PNG\r\n\x1a\nthis is not a png").expect("w")),
@@ -122,7 +124,7 @@ fn bad_view_files_name_the_file() {
         fs::create_dir_all(dir.join("depth")).expect("mkdir");
         fs::write(dir.join("scan.json"), &good).expect("write");
         make(&dir.join("depth/000000.png"));
-        let err = read_scan(&dir).and_then(|s| load_view(&s, 0, None)).unwrap_err().to_string();
+        let err = read_scan(&dir).and_then(|s| load_view(&s, 0, None)).expect_err("an error").to_string();
         assert!(err.contains("000000.png"), "{name}: `{err}`");
         assert_mentions(&err, needles);
         // the tag search's depth-only load fails the same way
@@ -130,7 +132,7 @@ fn bad_view_files_name_the_file() {
             read_scan(&dir).and_then(|s| load_depth_points(&s, 0, None)).expect_err("depth-only load").to_string();
         assert_eq!(depth_only, err, "{name}");
     }
-    let err = read_scan(&root.path().join("nowhere")).unwrap_err().to_string();
+    let err = read_scan(&root.path().join("nowhere")).expect_err("an error").to_string();
     assert_mentions(&err, &["nowhere", "scan.json"]);
 }
 

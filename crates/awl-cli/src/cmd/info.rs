@@ -98,13 +98,12 @@ fn file_info(path: &Path) -> anyhow::Result<serde_json::Value> {
     let mut info = json!({ "type": "cloud", "path": path, "points": cloud.len(), "normals": cloud.normals.is_some(),
                            "colors": cloud.colors.is_some(), "bounds": bounds_json(cloud.bounds()),
                            "warnings": warnings });
-    if ext == "ply" {
-        if let Ok(m) = awl::io::ply::read_ply_mesh(path) {
-            if !m.triangles.is_empty() {
-                info["triangles"] = json!(m.triangles.len());
-                info["area_m2"] = json!(m.area());
-            }
-        }
+    if ext == "ply"
+        && let Ok(m) = awl::io::ply::read_ply_mesh(path)
+        && !m.triangles.is_empty()
+    {
+        info["triangles"] = json!(m.triangles.len());
+        info["area_m2"] = json!(m.area());
     }
     Ok(info)
 }

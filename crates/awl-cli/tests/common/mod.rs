@@ -68,8 +68,8 @@ pub struct CadWorkpiece {
     pub truth: Truth,
 }
 
-/// A box shot in `pose` (`flat`, `tilt30`) with `seed`; its CAD sampled at `samples` points (seed
-/// 1) with normals as model.ply, and workpiece.json: `T_world_tag` = the truth's `T_object_tag`,
+/// A box shot in `pose` (`flat`, `tilt30`) with `seed`; its CAD sampled at `samples` points
+/// (seed 1) with normals as model.ply, and workpiece.json: `T_world_tag` = the truth's `T_object_tag`,
 /// the shot's tag with its id replaced by `tag_id` when given, the floor at the CAD's z = 0 (its
 /// footprint, where a fused model would record it).
 pub fn cad_workpiece(pose: &str, seed: u64, samples: usize, tag_id: Option<u32>) -> CadWorkpiece {

@@ -823,7 +823,7 @@ mod tests {
             clouds.iter().for_each(|c| a.add(c).expect("add"));
             a.cloud().clone()
         };
-        assert_eq!(in_pool(1, &accumulate), in_pool(2, &accumulate));
+        assert_eq!(in_pool(1, accumulate), in_pool(2, accumulate));
         assert!(VoxelAccumulator::new(&VoxelParams { voxel_size_m: 0.0 }).is_err());
     }
 }

@@ -360,7 +360,7 @@ mod tests {
         let path = dir.path().join("c.png");
         write_color_png(&path, &color).expect("write");
         assert_eq!(read_color_png(&path).expect("read"), color);
-        let err = read_depth_png(&path).unwrap_err().to_string();
+        let err = read_depth_png(&path).expect_err("an error").to_string();
         assert!(err.contains("c.png") && err.contains("16-bit"), "{err}");
     }
 

@@ -247,16 +247,16 @@ pub fn locate(
     params: &LocateParams,
     prior: Option<&HandEyePrior>,
 ) -> Result<Located> {
-    if let Some(declared) = &shot.tag {
-        if declared.family != tag.family || declared.id != tag.id || (declared.size_m - tag.size_m).abs() > 1e-6 {
-            return Err(shot_error(
-                shot,
-                format!(
-                    "scan.json declares tag {} id {} size {} m, but the workpiece's tag is {} id {} size {} m",
-                    declared.family, declared.id, declared.size_m, tag.family, tag.id, tag.size_m
-                ),
-            ));
-        }
+    if let Some(declared) = &shot.tag
+        && (declared.family != tag.family || declared.id != tag.id || (declared.size_m - tag.size_m).abs() > 1e-6)
+    {
+        return Err(shot_error(
+            shot,
+            format!(
+                "scan.json declares tag {} id {} size {} m, but the workpiece's tag is {} id {} size {} m",
+                declared.family, declared.id, declared.size_m, tag.family, tag.id, tag.size_m
+            ),
+        ));
     }
     // every view is placed with the hand-eye the plan starts from
     let recorded = shot.ee_from_camera;

@@ -177,10 +177,10 @@ impl Tolerance {
     /// [`Error::Invalid`] naming `--tolerance-mm` or `--tolerance-deg`.
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [("--tolerance-mm", self.position_m), ("--tolerance-deg", self.axis_rad)] {
-            if let Some(v) = v {
-                if !(v.is_finite() && v > 0.0) {
-                    return Err(Error::invalid(name, "the tolerance must be a positive number"));
-                }
+            if let Some(v) = v
+                && !(v.is_finite() && v > 0.0)
+            {
+                return Err(Error::invalid(name, "the tolerance must be a positive number"));
             }
         }
         Ok(())

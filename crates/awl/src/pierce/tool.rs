@@ -150,7 +150,7 @@ mod tests {
         }
         assert!(tool_poses(&p, &Vector3::zeros(), &Stroke::default()).is_err());
         let bad = Stroke { depth_m: -0.01, ..Stroke::default() };
-        assert!(tool_poses(&p, &Vector3::z(), &bad).unwrap_err().to_string().contains("depth_m"));
+        assert!(tool_poses(&p, &Vector3::z(), &bad).expect_err("an error").to_string().contains("depth_m"));
     }
 
     #[test]

@@ -263,17 +263,17 @@ pub(crate) fn linearise(
                 let Some(nb) = correspondence(target.index, target.points, &q, max_m, hint) else { continue };
                 let t = target.points[nb.index as usize].cast::<f64>();
                 let n = target.normals[nb.index as usize].cast::<f64>();
-                if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals) {
-                    if ns[c * CHUNK + j].dot(&n) < cos {
-                        continue;
-                    }
+                if let (Some(cos), Some(ns)) = (p.min_normal_cos, moved_normals)
+                    && ns[c * CHUNK + j].dot(&n) < cos
+                {
+                    continue;
                 }
                 let offset = s - t;
                 let r = n.dot(&offset);
-                if let Some(max) = p.max_tangential_m {
-                    if (offset - n * r).norm_squared() > max * max {
-                        continue;
-                    }
+                if let Some(max) = p.max_tangential_m
+                    && (offset - n * r).norm_squared() > max * max
+                {
+                    continue;
                 }
                 let w = p.kernel.weight(r, p.kernel_scale_m);
                 sys.inliers += 1;
