@@ -9,6 +9,7 @@ pub mod camera;
 pub mod cloud;
 pub mod cluster;
 pub mod error;
+#[cfg(feature = "eval")]
 pub mod eval;
 pub mod filter;
 pub mod handeye;
@@ -23,19 +24,24 @@ pub mod off;
 pub mod organized;
 pub mod pierce;
 pub mod pipeline;
+#[cfg(any(test, feature = "sim"))]
 pub(crate) mod random;
 pub mod registration;
+#[cfg(feature = "report")]
 pub mod render;
+#[cfg(feature = "report")]
 pub mod report_html;
 pub mod robot;
 pub mod rosbag;
 pub mod scan;
 pub mod segment;
+#[cfg(any(test, feature = "sim"))]
 pub mod sim;
 pub mod smooth;
 pub mod spatial;
 pub mod tag;
 pub mod transform;
+#[cfg(feature = "trial")]
 pub mod trial;
 pub mod workpiece;
 

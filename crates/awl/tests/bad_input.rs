@@ -1,5 +1,6 @@
 //! Bad input never panics: every case gives an error that names the file (and the field, for
 //! manifests) and says what is wrong.
+#![cfg(all(feature = "sim", feature = "eval"))]
 
 use std::fs;
 use std::path::Path;

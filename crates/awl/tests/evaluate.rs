@@ -5,6 +5,7 @@
 //! - the same with 0.5 mm noise and 10 % floor / outlier points;
 //! - a simulated 4-view fused box, checked by `tests/py/check_evaluate.py` (Open3D) within 5 %;
 //! - bad input gives typed errors naming the file or field.
+#![cfg(all(feature = "sim", feature = "eval"))]
 
 mod common;
 use common::shared_data;

@@ -8,6 +8,7 @@
 //!   the shots' truth targets (robot base frame).
 //!
 //! Run: `cargo test --release -p awl --test fuse_reference -- --nocapture` (prints every measurement).
+#![cfg(feature = "trial")]
 
 mod common;
 

@@ -4,6 +4,7 @@
 //! 30 degrees) on the same seed-1 scans, each fused once per test binary.
 //!
 //! Run: `cargo test --release -p awl --test fuse_sim -- --nocapture` (prints the trial tables).
+#![cfg(feature = "trial")]
 
 mod common;
 

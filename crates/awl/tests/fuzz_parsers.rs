@@ -6,6 +6,7 @@
 //! counting allocator; the seeds are a few KB), and every error names the file. `AWL_FUZZ_ITERS`
 //! (default 150 per parser and seed, about a minute in all) sets the count; `AWL_FUZZ_SEED` the
 //! seed. A failing input is written to the temp folder and its path printed: make it a fixture test.
+#![cfg(feature = "sim")]
 #![allow(unsafe_code)]
 
 mod common;

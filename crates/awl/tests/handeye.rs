@@ -3,6 +3,7 @@
 //! degenerate motion, the typed errors of bad input, and the calibration traps: inverted pose
 //! conventions, a tag scale or a translation the motions do not determine, the RMS over all poses,
 //! the sigmas against the actual errors, and no diagnosis on normal captures.
+#![cfg(feature = "sim")]
 
 use std::path::PathBuf;
 use std::process::Command;

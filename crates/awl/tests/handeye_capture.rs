@@ -6,6 +6,7 @@
 //! same detections (`tests/py/check_handeye.py`, with `AWL_PYTHON`; skipped with a message without).
 //!
 //! Run in release: `cargo test --release -p awl --test handeye_capture`.
+#![cfg(feature = "apriltag")]
 
 mod common;
 

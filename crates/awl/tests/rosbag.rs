@@ -10,6 +10,7 @@
 //! fuse of the imported scan equals the folder's bit for bit, TF interpolation between samples
 //! while moving is within 0.1 mm of the true motion, and the bad inputs (missing topic,
 //! unsupported encoding, TF gap, truncated bag, no still period) are clear errors that write nothing.
+#![cfg(feature = "sim")]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

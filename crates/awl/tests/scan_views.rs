@@ -1,6 +1,7 @@
 //! A scan's views held in memory ([`awl::scan::ViewData::Images`]) load as the same files do: the
 //! same points, pixels and colors at every pixel step, the same color image for the tag search; a
 //! scan whose views are in memory cannot be written as a manifest naming no files.
+#![cfg(feature = "sim")]
 
 use awl::io::scan::{load_depth_points, load_view_every_nth, read_scan, read_view_color, write_scan};
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};

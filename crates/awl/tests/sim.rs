@@ -4,6 +4,7 @@
 //! that test fails, not skips, when the folder is missing).
 //!
 //! Run in release: `cargo test --release -p awl --test sim`.
+#![cfg(feature = "sim")]
 
 mod common;
 use common::shared_data;

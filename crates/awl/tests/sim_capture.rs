@@ -6,6 +6,7 @@
 //! `T_base_ee` calibrate `T_ee_camera` to the truth through `awl::handeye::calibrate`.
 //!
 //! Run in release: `cargo test --release -p awl --test sim_capture -- --nocapture` to see the numbers.
+#![cfg(all(feature = "sim", feature = "apriltag"))]
 
 mod common;
 mod tags_common;

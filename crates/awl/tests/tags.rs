@@ -5,6 +5,7 @@
 //! Shared data: `$AWL_SHARED_DATA` or `<workspace>/../shared/data` (fails, not skips, when missing).
 //! The pupil-apriltags comparison runs `tests/py/check_tags.py` with `$AWL_PYTHON`; it is skipped
 //! with a message only when `AWL_PYTHON` is unset. Run in release: `cargo test --release -p awl --test tags`.
+#![cfg(feature = "apriltag")]
 
 mod common;
 mod tags_common;

@@ -5,6 +5,7 @@
 //! planar-ambiguity solutions, and the detection time per 640x480 frame (printed, not asserted).
 //!
 //! Run in release: `cargo test --release -p awl --test tags_sim -- --nocapture` to see the numbers.
+#![cfg(all(feature = "sim", feature = "apriltag"))]
 
 mod common;
 mod tags_common;

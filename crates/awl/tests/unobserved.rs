@@ -3,6 +3,7 @@
 //! its axis), and a recorded hand-eye 1 deg / 5 mm off.
 //!
 //! Numbers measured at the commit that added them (seed 1): see each assertion.
+#![cfg(feature = "sim")]
 
 use awl::io::scan::read_scan;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};

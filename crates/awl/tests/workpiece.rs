@@ -4,6 +4,7 @@
 //! and tests/fuse_sim.rs (which fuse each scan once).
 //!
 //! Run: `cargo test --release -p awl --test workpiece -- --nocapture` (prints every measurement).
+#![cfg(all(feature = "sim", feature = "apriltag"))]
 
 mod common;
 

@@ -25,6 +25,7 @@
 //! # Ok(()) }
 //! ```
 
+mod apriltag_c;
 mod depth;
 mod detect;
 mod ippe;
@@ -34,7 +35,8 @@ mod report;
 /// The tag family awl detects (`tag.family` in scan.json and capture files).
 pub const SUPPORTED_FAMILY: &str = "tag36h11";
 
+pub use apriltag_c::AprilTagDetector;
 pub use depth::{DepthScore, DepthScores, MIN_DEPTH_POINTS, score_depth};
-pub use detect::{AprilTagDetector, DetectorParams, GrayView, TagDetection, TagDetector};
+pub use detect::{DetectorParams, GrayView, TagDetection, TagDetector};
 pub use pose::{TagPose, TagPoseSolution, estimate_tag_pose, tag_corners_m};
 pub use report::{PosedTag, detect_and_pose};
