@@ -191,6 +191,21 @@ impl Default for RoiConfig {
     }
 }
 
+/// How the fuse holds its views between their preparation and the merge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(rename_all = "kebab-case")]
+pub enum ViewMemory {
+    /// Prepare every view first and hold each one's registration copy, for the joint refinement
+    /// and refinement rounds (default).
+    #[default]
+    Hold,
+    /// Register each view as it is prepared and keep only its measured points once merged: the
+    /// memory is the model and a view or two in flight. Each pose is final once its view is judged,
+    /// so it needs `registration.refine_rounds = 0` and `registration.joint_levels = []` (the
+    /// `fast` preset).
+    Stream,
+}
+
 /// Every parameter of `awl fuse`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -236,6 +251,9 @@ pub struct FuseConfig {
     pub snap_plane: Option<PlaneParams>,
     /// Registration.
     pub registration: RegistrationConfig,
+    /// How the views are held: `hold` (default) or `stream` (the `fast` preset: no refinement rounds,
+    /// no joint levels, [`ViewMemory`]).
+    pub view_memory: ViewMemory,
     /// Voxel of the merged model. Default 2 mm.
     pub merge_voxel: VoxelParams,
     /// Floor removal and clustering.
@@ -263,6 +281,7 @@ impl Default for FuseConfig {
             registration_smoothing_m: Some(0.005),
             snap_plane: Some(PlaneParams { iterations: 300, ..PlaneParams::default() }),
             registration: RegistrationConfig::default(),
+            view_memory: ViewMemory::Hold,
             merge_voxel: VoxelParams::default(),
             isolate: IsolateConfig::default(),
             smoothing: Some(MlsParams::default()),
@@ -292,18 +311,16 @@ impl FuseConfig {
             view_voxel: VoxelParams { voxel_size_m: 0.005 },
             merge_voxel: VoxelParams { voxel_size_m: 0.004 },
             registration,
+            view_memory: ViewMemory::Stream,
             smoothing: default.smoothing.map(|mls| MlsParams { radius_m: 0.010, polynomial: false, ..mls }),
             ..default
         }
     }
 
-    /// Whether [`fuse`](super::fuse) registers each view as it is prepared and keeps only its
-    /// measured points (no refinement rounds, no joint refinement: each pose is final once the
-    /// view is judged), rather than preparing every view first and holding them all. Streamed, the
-    /// memory is the model and one or two views in flight (the `fast` preset).
+    /// Whether [`fuse`](super::fuse) streams its views (`view_memory = "stream"`, [`ViewMemory`]).
     #[must_use]
     pub fn streams_views(&self) -> bool {
-        self.registration.refine_rounds == 0 && self.registration.joint_levels.is_empty()
+        self.view_memory == ViewMemory::Stream
     }
 
     /// Checks the parameters no stage checks on its own (the others are checked by their stage).
@@ -315,6 +332,13 @@ impl FuseConfig {
             return Err(Error::invalid("pixel_step", "must be 1 or more"));
         }
         let r = &self.registration;
+        if self.streams_views() && (r.refine_rounds > 0 || !r.joint_levels.is_empty()) {
+            return Err(Error::invalid(
+                "view_memory",
+                "\"stream\" fixes each pose once its view is judged: it needs registration.refine_rounds = 0 and \
+                 registration.joint_levels = [] (or view_memory = \"hold\")",
+            ));
+        }
         for (name, value) in [
             ("registration_smoothing_m", self.registration_smoothing_m),
             ("registration.joint_convergence_translation_m", Some(r.joint_convergence_translation_m)),
@@ -629,9 +653,18 @@ mod tests {
         assert!(FuseConfig::fast().check().is_ok());
         // the fast preset streams its views; the default holds them for the joint refinement
         assert!(FuseConfig::fast().streams_views() && !FuseConfig::default().streams_views());
+        // streaming is asked for, not derived, and refused with what it cannot do
         let mut rounds = FuseConfig::fast();
         rounds.registration.refine_rounds = 1;
-        assert!(!rounds.streams_views());
+        let e = rounds.check().expect_err("rounds while streaming").to_string();
+        assert!(e.contains("view_memory") && e.contains("refine_rounds = 0"), "{e}");
+        let joint = FuseConfig { view_memory: ViewMemory::Stream, ..FuseConfig::default() };
+        assert!(joint.check().expect_err("joint while streaming").to_string().contains("joint_levels = []"));
+        rounds.view_memory = ViewMemory::Hold;
+        assert!(rounds.check().is_ok() && !rounds.streams_views());
+        let mut held = FuseConfig::fast();
+        held.view_memory = ViewMemory::Hold;
+        assert!(held.check().is_ok() && !held.streams_views(), "no rounds, no joint, held: valid");
         // a partial document over the fast preset keeps the preset's other keys
         let c = FuseConfig::with_overrides_on(FuseConfig::fast(), &json!({"merge_voxel": {"voxel_size_m": 0.003}}))
             .expect("parse");
