@@ -44,3 +44,31 @@ pub fn fuse_job(
     let workpiece = workpiece_from_search(tags.as_ref(), &fused, model_file, params)?;
     Ok(FuseJob { fused, workpiece })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{SceneKind, SimParams, simulate};
+
+    /// A simulated scan in memory: the job's workpiece places the tag where the truth has it (the
+    /// model's frame is the world as the anchor's recorded pose places it, within a few centimetres);
+    /// built without tag detection, the job refuses the scan, naming the feature.
+    #[test]
+    fn the_job_places_the_tag_or_names_the_missing_feature() {
+        let sim = simulate(&SimParams { views: 6, seed: 2, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+        let scan = sim.in_memory_scan();
+        let job = fuse_job(&scan, &FuseConfig::default(), &WorkpieceParams::default(), "model.ply", &|_, _, _| {});
+        if cfg!(feature = "apriltag") {
+            let job = job.expect("job");
+            let workpiece = job.workpiece.as_ref().expect("the scan declares a tag");
+            let world_from_tag = workpiece.world_from_tag.expect("the tag seen");
+            let truth = sim.truth.world_from_tag.expect("true tag");
+            let apart_mm = (world_from_tag.translation.vector - truth.translation.vector).norm() * 1e3;
+            assert!(apart_mm < 30.0, "tag {apart_mm:.1} mm from the truth; warnings {:?}", job.warnings());
+            assert_eq!(workpiece.model, "model.ply");
+        } else {
+            let e = job.expect_err("no tag detection").to_string();
+            assert!(e.contains("`apriltag` feature"), "{e}");
+        }
+    }
+}

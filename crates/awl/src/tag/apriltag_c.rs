@@ -133,3 +133,14 @@ impl TagDetector for AprilTagDetector {
         match self.never {}
     }
 }
+
+#[cfg(all(test, not(feature = "apriltag")))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn without_the_feature_the_detector_names_it() {
+        let e = AprilTagDetector::new(&DetectorParams::default()).expect_err("no detector").to_string();
+        assert!(e.contains("`apriltag` feature"), "{e}");
+    }
+}
