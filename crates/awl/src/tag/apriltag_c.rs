@@ -1,42 +1,33 @@
 //! [`AprilTagDetector`]: the [`TagDetector`] on the AprilTag 3 C library (`apriltag` crate, C
-//! sources vendored and compiled by `cc`; the `apriltag` feature). Without the feature the type
-//! remains and [`AprilTagDetector::new`] says how to get it.
+//! sources vendored and compiled by `cc`; the `apriltag` feature, else `no_detector`).
 
-#[cfg(feature = "apriltag")]
 use apriltag::detector::QuadThresholds;
-#[cfg(feature = "apriltag")]
 use measurements::Angle;
-#[cfg(feature = "apriltag")]
 use noisy_float::types::r32;
 
 use super::detect::{DetectorParams, GrayView, TagDetection, TagDetector};
 use crate::error::{Error, Result};
 
 /// Images smaller than this (either side, pixels) cannot hold a decodable tag36h11 and are not searched.
-#[cfg(feature = "apriltag")]
 const MIN_SIDE_PX: u32 = 16;
 
 /// Offset the AprilTag C library adds to pixel coordinates (its pixel centres sit at +0.5).
-#[cfg(feature = "apriltag")]
 const C_PIXEL_CENTRE: f64 = 0.5;
 
 /// tag36h11 detector on the AprilTag 3 C library (version 3.2, vendored by `apriltag-sys` 0.3).
 ///
 /// Holds the C detector and its decode table (built once: keep one per thread and reuse it). Not
 /// `Send`: create it on the thread that uses it.
-#[cfg(feature = "apriltag")]
 pub struct AprilTagDetector {
     detector: apriltag::Detector,
 }
 
-#[cfg(feature = "apriltag")]
 impl std::fmt::Debug for AprilTagDetector {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("AprilTagDetector(tag36h11)")
     }
 }
 
-#[cfg(feature = "apriltag")]
 impl AprilTagDetector {
     /// A tag36h11 detector with `params`.
     ///
@@ -70,7 +61,6 @@ impl AprilTagDetector {
     }
 }
 
-#[cfg(feature = "apriltag")]
 impl TagDetector for AprilTagDetector {
     fn detect_gray(&mut self, image: GrayView<'_>) -> Result<Vec<TagDetection>> {
         if image.width() < MIN_SIDE_PX || image.height() < MIN_SIDE_PX {
@@ -102,45 +92,5 @@ impl TagDetector for AprilTagDetector {
                 .then(a.centre_px[1].total_cmp(&b.centre_px[1]))
         });
         Ok(detections)
-    }
-}
-
-/// Stands for the AprilTag 3 C detector in a build without the `apriltag` feature: it cannot be made.
-#[cfg(not(feature = "apriltag"))]
-#[derive(Debug)]
-pub struct AprilTagDetector {
-    never: std::convert::Infallible,
-}
-
-#[cfg(not(feature = "apriltag"))]
-impl AprilTagDetector {
-    /// Refuses: this build has no tag detector.
-    ///
-    /// # Errors
-    /// [`Error::Invalid`] naming the `apriltag` feature, or out-of-range `params`.
-    pub fn new(params: &DetectorParams) -> Result<Self> {
-        params.check()?;
-        Err(Error::invalid(
-            "AprilTag detector",
-            "awl was built without its `apriltag` feature (the AprilTag C library): build with it, the default, to detect tags",
-        ))
-    }
-}
-
-#[cfg(not(feature = "apriltag"))]
-impl TagDetector for AprilTagDetector {
-    fn detect_gray(&mut self, _image: GrayView<'_>) -> Result<Vec<TagDetection>> {
-        match self.never {}
-    }
-}
-
-#[cfg(all(test, not(feature = "apriltag")))]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn without_the_feature_the_detector_names_it() {
-        let e = AprilTagDetector::new(&DetectorParams::default()).expect_err("no detector").to_string();
-        assert!(e.contains("`apriltag` feature"), "{e}");
     }
 }

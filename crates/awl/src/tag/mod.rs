@@ -25,18 +25,24 @@
 //! # Ok(()) }
 //! ```
 
+#[cfg(feature = "apriltag")]
 mod apriltag_c;
 mod depth;
 mod detect;
 mod ippe;
+#[cfg(not(feature = "apriltag"))]
+mod no_detector;
 mod pose;
 mod report;
 
 /// The tag family awl detects (`tag.family` in scan.json and capture files).
 pub const SUPPORTED_FAMILY: &str = "tag36h11";
 
+#[cfg(feature = "apriltag")]
 pub use apriltag_c::AprilTagDetector;
 pub use depth::{DepthScore, DepthScores, MIN_DEPTH_POINTS, score_depth};
 pub use detect::{DetectorParams, GrayView, TagDetection, TagDetector};
+#[cfg(not(feature = "apriltag"))]
+pub use no_detector::AprilTagDetector;
 pub use pose::{TagPose, TagPoseSolution, estimate_tag_pose, tag_corners_m};
 pub use report::{PosedTag, detect_and_pose};
