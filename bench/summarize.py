@@ -110,8 +110,9 @@ def check_text(check, keys):
     return ""
 
 
-# the end-to-end rows: awl's default, awl --preset fast, the Open3D pipeline
-TOOLS = ("awl", "awl-fast", "open3d")
+# the end-to-end rows: awl's default, awl --preset fast, the Open3D pipeline, and an earlier awl
+# binary's two presets (bench/compare --baseline)
+TOOLS = ("awl", "awl-fast", "open3d", "base", "base-fast")
 
 
 def e2e(out):
@@ -169,6 +170,13 @@ def e2e(out):
                 w1 = median([float(r["wall_s"]) for r in by.get((tool, t), [])])
                 if w1 and w2:
                     lines.append(f"{tool} speed-up 1 -> 2 threads: {w1 / w2:.2f}x")
+    for t in sorted({k[1] for k in by}, reverse=True):
+        for tool, base in (("awl", "base"), ("awl-fast", "base-fast")):
+            now, before = by.get((tool, t), []), by.get((base, t), [])
+            if now and before:
+                wall = median([float(r["wall_s"]) for r in now]) / median([float(r["wall_s"]) for r in before])
+                rss = median([int(r["maxrss_kb"]) for r in now]) / median([int(r["maxrss_kb"]) for r in before])
+                lines.append(f"{tool} / baseline, {t} thread(s), medians: wall {wall:.3f}x, peak RSS {rss:.3f}x")
     ident = os.path.join(out, "e2e", "identical.txt")
     if os.path.exists(ident):
         lines.append(open(ident).read().strip())

@@ -30,7 +30,7 @@ const MAPPED_FROM_BYTES: i32 = 512 * 1024;
 /// instead of carving it out of the heap (`M_MMAP_THRESHOLD` fixed: glibc otherwise raises it to
 /// the largest mapped block freed so far, up to 32 MiB, and after the first views' and the tag
 /// search's buffers every view's lists come from the heap). Called when a fuse streams its views
-/// (`FuseConfig::streams_views`): each view's lists, a little larger or smaller than the last
+/// (`view_memory = "stream"`): each view's lists, a little larger or smaller than the last
 /// view's, then leave no heap holes that the model's lists, growing beside them, cannot reuse.
 /// `awl fuse --preset fast`, 12-view box, 2 threads, 14 alternated runs: peak RSS 35.1 (33.3-39.1)
 /// -> 32.1 (30.8-33.3) MiB, for 1.09x the wall time: 3x the page faults (BENCHMARKS.md 57). Not

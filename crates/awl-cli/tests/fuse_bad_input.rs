@@ -173,6 +173,11 @@ fn print_config_round_trips_through_config() {
     let out = awl(&["fuse", "--print-config", "--config", path.to_str().expect("utf-8")]);
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && e.contains("off.toml") && e.contains("false to switch it off"), "{e}");
+    // a check across keys (streaming with a joint step) names the file and the key too
+    std::fs::write(&path, "view_memory = \"stream\"\n").expect("write config");
+    let out = awl(&["fuse", "--print-config", "--config", path.to_str().expect("utf-8")]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("off.toml") && e.contains("view_memory"), "{e}");
     // without --print-config the scan and the output folder are required
     let out = awl(&["fuse"]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("SCAN"), "scan required");

@@ -117,7 +117,10 @@ fn images_cameras_configs_threads_and_targets_are_bounded_before_allocating() {
         ),
         ("[isolate.floor.plane]\niterations = 4000000000\n", "isolate.floor.plane.iterations"),
         ("[snap_plane]\niterations = 100001\n", "snap_plane.iterations"),
-        ("[registration]\nrefine_rounds = 1000000\n", "registration.refine_rounds"),
+        (
+            "[registration]\njoint_levels = [{ voxel_m = 0.004, max_correspondence_m = 0.012, max_iterations = 1000000 }]\n",
+            "registration.joint_levels[0].max_iterations",
+        ),
     ] {
         let config = dir.path().join("fuse.toml");
         std::fs::write(&config, toml).expect("write");

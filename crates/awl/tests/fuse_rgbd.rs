@@ -97,7 +97,6 @@ fn open3d_rgbd_frames_recover_true_poses() {
         config.normals = NormalParams { neighbors: 30, radius_m: Some(0.05) };
         let level = |voxel_m, max_correspondence_m| IcpLevel { voxel_m, max_correspondence_m, max_iterations: 30 };
         config.registration.icp.levels = vec![level(0.04, 0.15), level(0.02, 0.06), level(0.01, 0.03)];
-        config.registration.refine_levels = vec![level(0.02, 0.05), level(0.01, 0.02)];
         config.registration.accept.max_inlier_rmse_m = 0.015;
         // the room is 1-3 m away: a relative seed error of up to 4 cm / 4 deg (both views off by
         // 2 cm / 2 deg) moves a view's centroid by up to 4 cm + 4 deg x 2.5 m = 21 cm

@@ -75,7 +75,11 @@ fn load_config(path: Option<&PathBuf>, base: FuseConfig) -> anyhow::Result<FuseC
     } else {
         FuseConfig::from_toml_on(base, &text)
     };
-    config.with_context(|| format!("{}: invalid fuse config", path.display()))
+    let context = || format!("{}: invalid fuse config", path.display());
+    let config = config.with_context(context)?;
+    // the checks across keys too, while the file can still be named
+    config.check().with_context(context)?;
+    Ok(config)
 }
 
 /// Writes `model.ply`, `report.json`, `report.html` (self-contained; its renders also as
@@ -101,7 +105,7 @@ pub fn write_outputs(out_dir: &Path, job: &FuseJob, rmse_m: Option<f64>) -> anyh
 
 /// Runs the fuse job ([`fuse_job`]) with a stage progress bar on stderr (hidden when `quiet`).
 pub fn fuse_with_progress(scan: &Scan, config: &FuseConfig, quiet: bool) -> anyhow::Result<FuseJob> {
-    if config.streams_views() {
+    if config.view_memory == awl::pipeline::ViewMemory::Stream {
         crate::malloc::map_view_sized_blocks();
     }
     let bar = stage_bar(quiet);

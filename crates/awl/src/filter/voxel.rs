@@ -41,9 +41,9 @@ const NORMAL_CANCEL_RATIO: f64 = 1e-6;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct VoxelParams {
-    /// Edge of a voxel, metres (default 0.002: a little under the depth noise of a structured-light
-    /// or stereo sensor at 1 m (about 2-3 mm), so merging points within one voxel averages noise
-    /// away without erasing shape detail the sensor actually resolves). Positive and finite.
+    /// Edge of a voxel, metres; positive and finite. Default 0.002: a little under the depth
+    /// noise of a structured-light or stereo sensor at 1 m (about 2-3 mm), so merging points
+    /// within one voxel averages noise away without erasing detail the sensor resolves.
     pub voxel_size_m: f64,
 }
 

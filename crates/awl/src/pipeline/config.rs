@@ -63,37 +63,22 @@ pub struct RegistrationConfig {
     /// 10 cm gate (SLAM-level seed errors of 5 cm / 5 deg) down to 3 mm voxels and a 10 mm gate;
     /// the finest level converges when a step moves less than 0.1 mm and 1e-4 rad (the noise floor
     /// of the steps on realistic depth data), a coarser one at those scaled by its voxel over the
-    /// finest level's. The 2 mm level is left to the joint refinement: on 8
-    /// simulated scans, dropping a fourth sequential level (2 mm / 5 mm) changed the model's RMSE
-    /// by -0.22 to +0.15 mm (mean 0.706 -> 0.709 mm) and saved 6-22 % of the registration's time
-    /// (BENCHMARKS.md 37).
+    /// finest level's; the 2 mm level is left to the joint refinement (BENCHMARKS.md 37).
     pub icp: IcpParams,
     /// Acceptance rule.
     pub accept: AcceptanceRule,
     /// What happens to rejected views.
     pub on_reject: RejectPolicy,
-    /// Rounds of refining every accepted view against all the others after the sequential pass.
-    /// Default 0: on four simulated 12-view scans (awl's box and shell, the reference simulator's
-    /// box and shell) two rounds changed the model's RMSE against the CAD by at most 0.011 mm and
-    /// the mean error of the views' relative poses by at most 0.007 degrees / 0.09 mm (at 1 m),
-    /// either way, for 45 % of the fuse's CPU time (BENCHMARKS.md, optimisation 5). Raise it for
-    /// scans whose sequential pass drifts.
-    pub refine_rounds: usize,
-    /// ICP levels of the refinement rounds (small corrections). Default: 4 mm / 12 mm, 2 mm / 5 mm.
-    pub refine_levels: Vec<IcpLevel>,
     /// Levels of the joint refinement of the anchor and the accepted views after the sequential
     /// pass (every overlapping pair at once, see `registration::joint`; it uses the ICP's kernel
-    /// and its own convergence thresholds below); empty: none. Default 4 mm / 12 mm, 2 mm / 5 mm. On
-    /// awl's box scans (seeds 1-4) it took the model's RMSE from 1.21 / 0.66 / 0.61 / 2.71 mm to
-    /// 1.14 / 0.80 / 0.78 / 0.99 mm: the sequential pass drifts on some scans (BENCHMARKS.md, 14).
+    /// and its own convergence thresholds below); empty: none. Default 4 mm / 12 mm, 2 mm / 5 mm:
+    /// the sequential pass drifts on some scans (BENCHMARKS.md 14).
     pub joint_levels: Vec<IcpLevel>,
     /// Source points per view and joint level at most. Default 2500.
     pub joint_source_points: usize,
     /// A joint level converges when no view's step moves more than this, metres. Default 3e-5,
     /// under a third of the sequential ICP's: on views registered smoothed
-    /// (`registration_smoothing_m`) the joint's steps keep improving the model below 0.1 mm. On 8
-    /// simulated scans, 1e-4 / 5e-5 / 3e-5 gave a mean model RMSE of 0.687 / 0.641 / 0.599 mm
-    /// (box seed 4: 1.16 / 0.94 / 0.64 mm) for 16 / 16 / 20 s of registration in all
+    /// (`registration_smoothing_m`) the joint's steps keep improving the model below 0.1 mm
     /// (BENCHMARKS.md 43).
     pub joint_convergence_translation_m: f64,
     /// A joint level converges when no view's step rotates more than this either, radians. Default 3e-5.
@@ -114,8 +99,6 @@ impl Default for RegistrationConfig {
             },
             accept: AcceptanceRule::default(),
             on_reject: RejectPolicy::Exclude,
-            refine_rounds: 0,
-            refine_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
             joint_levels: vec![level(0.004, 0.012, 30), level(0.002, 0.005, 30)],
             joint_source_points: 2500,
             joint_convergence_translation_m: 3e-5,
@@ -176,10 +159,10 @@ impl Default for IsolateConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RoiConfig {
-    /// Keep only points within this distance of the point the cameras look at (the least-squares
-    /// intersection of the views' optical axes, from the recorded poses), metres; `false` keeps
-    /// everything. Default 1.0: the simulated 50 cm workpieces and their surroundings; raise it
-    /// for bigger workpieces. The focus point found is written in the report.
+    /// Keep only points within this distance of the point the cameras look at, metres.
+    /// That point is the least-squares intersection of the views' optical axes (from the recorded
+    /// poses), written in the report; `false` keeps everything. Default 1.0: the simulated 50 cm
+    /// workpieces and their surroundings; raise it for bigger workpieces.
     #[serde(with = "crate::off")]
     #[schemars(with = "Option<f64>")]
     pub radius_m: Option<f64>,
@@ -195,19 +178,22 @@ impl Default for RoiConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum ViewMemory {
-    /// Prepare every view first and hold each one's registration copy, for the joint refinement
-    /// and refinement rounds (default).
+    /// Prepare every view first and hold each merged one's registration copy, for the joint
+    /// refinement (default).
     #[default]
     Hold,
     /// Register each view as it is prepared and keep only its measured points once merged: the
     /// memory is the model and a view or two in flight. Each pose is final once its view is judged,
-    /// so it needs `registration.refine_rounds = 0` and `registration.joint_levels = []` (the
-    /// `fast` preset).
+    /// so it needs `registration.joint_levels = []` (the `fast` preset).
     Stream,
 }
 
-/// Every parameter of `awl fuse`.
+/// Every parameter of `awl fuse`. Deserialized, a document's keys override exactly those of
+/// [`FuseConfig::default`] ([`FuseConfig::with_overrides`]): each key has one default, whichever
+/// table names it (a partial `[registration.icp]` keeps the fuse's ICP levels, not those of
+/// `IcpParams::default`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(remote = "Self")]
 #[serde(default, deny_unknown_fields)]
 pub struct FuseConfig {
     /// Region of interest around the point the cameras look at.
@@ -218,28 +204,25 @@ pub struct FuseConfig {
     pub outliers: SorParams,
     /// Per-view normals, oriented toward the view's camera. Default 20 neighbours within 10 mm.
     pub normals: NormalParams,
-    /// Half-width, pixels, of the window on a depth view's image where its points find their
-    /// neighbours for outlier removal and normals, before the view's voxel grid. Default 3 (7 x 7
-    /// pixels, about 1 cm at 1 m): the stage 2.4 -> 0.85 s, model RMSE better on 6 of 8 scans, the
-    /// box piercing trials equal within their spread (BENCHMARKS.md 20). 0: a k-d tree of the
-    /// down-sampled view, as for views given as clouds.
+    /// Half-width, pixels, of the image window where a depth view's points find their neighbours
+    /// for outlier removal and normals. Applied before the view's voxel grid; 0: a k-d tree of the
+    /// down-sampled view, as for views given as clouds. Default 3 (7 x 7 pixels, about 1 cm at
+    /// 1 m; BENCHMARKS.md 20).
     pub pixel_window: usize,
     /// Use the pixels of every this-many-th row and column of a depth view only (1: all). The
     /// `pixel_window` counts pixels of that coarser grid. Default 1; the `fast` preset takes 2.
     pub pixel_step: usize,
-    /// Drop points seen at more than this angle between their normal and the ray to the camera,
-    /// radians: flying pixels at depth edges form veils seen edge-on, and grazing returns are the
-    /// noisiest. `false` keeps all. Default 80 degrees.
+    /// Drop points whose normal is more than this far from the ray to the camera, radians.
+    /// Flying pixels at depth edges form veils seen edge-on, and grazing returns are the noisiest.
+    /// `false` keeps all. Default 80 degrees.
     #[serde(with = "crate::off")]
     #[schemars(with = "Option<f64>")]
     pub max_incidence_rad: Option<f64>,
-    /// Register the depth views on copies of their points moved along their rays onto the plane
-    /// of their pixel-window neighbours (the normals' neighbourhoods, with their normal), each by
-    /// at most this many metres; the model is still made of the measured points. `false` registers
-    /// the measured points. Default 0.005: on 8 simulated scans, with the joint's threshold below,
-    /// model RMSE 0.709 -> 0.599 mm (mean; every scan better but box seed 4, 0.61 -> 0.64 mm) in
-    /// the same registration time (BENCHMARKS.md 42, 43). Views given as clouds (or cleaned with
-    /// `pixel_window = 0`) are not smoothed.
+    /// How far a depth view's points may move along their rays for registration, metres.
+    /// The registration's copy of each point goes onto the plane of its pixel-window neighbours
+    /// (the normals' neighbourhoods); the model is still made of the measured points. `false`
+    /// registers the measured points. Views given as clouds (or cleaned with `pixel_window = 0`)
+    /// are not smoothed. Default 0.005 (BENCHMARKS.md 42, 43).
     #[serde(with = "crate::off")]
     #[schemars(with = "Option<f64>")]
     pub registration_smoothing_m: Option<f64>,
@@ -251,8 +234,8 @@ pub struct FuseConfig {
     pub snap_plane: Option<PlaneParams>,
     /// Registration.
     pub registration: RegistrationConfig,
-    /// How the views are held: `hold` (default) or `stream` (the `fast` preset: no refinement rounds,
-    /// no joint levels, [`ViewMemory`]).
+    /// How the views are held: `hold` (default) or `stream` (the `fast` preset; no joint levels,
+    /// [`ViewMemory`]).
     pub view_memory: ViewMemory,
     /// Voxel of the merged model. Default 2 mm.
     pub merge_voxel: VoxelParams,
@@ -290,6 +273,19 @@ impl Default for FuseConfig {
     }
 }
 
+impl Serialize for FuseConfig {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        FuseConfig::serialize(self, serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for FuseConfig {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> std::result::Result<Self, D::Error> {
+        let document = serde_json::Value::deserialize(deserializer)?;
+        FuseConfig::with_overrides(&document).map_err(serde::de::Error::custom)
+    }
+}
+
 impl FuseConfig {
     /// The `fast` preset: a quick model, 0.4-1.6 mm RMSE on 8 simulated scans instead of the
     /// defaults' 0.4-0.7 mm (registered without the joint refinement, a box's views stay 1-4 mm
@@ -317,12 +313,6 @@ impl FuseConfig {
         }
     }
 
-    /// Whether [`fuse`](super::fuse) streams its views (`view_memory = "stream"`, [`ViewMemory`]).
-    #[must_use]
-    pub fn streams_views(&self) -> bool {
-        self.view_memory == ViewMemory::Stream
-    }
-
     /// Checks the parameters no stage checks on its own (the others are checked by their stage).
     ///
     /// # Errors
@@ -332,11 +322,11 @@ impl FuseConfig {
             return Err(Error::invalid("pixel_step", "must be 1 or more"));
         }
         let r = &self.registration;
-        if self.streams_views() && (r.refine_rounds > 0 || !r.joint_levels.is_empty()) {
+        if self.view_memory == ViewMemory::Stream && !r.joint_levels.is_empty() {
             return Err(Error::invalid(
                 "view_memory",
-                "\"stream\" fixes each pose once its view is judged: it needs registration.refine_rounds = 0 and \
-                 registration.joint_levels = [] (or view_memory = \"hold\")",
+                "\"stream\" fixes each pose once its view is judged: it needs registration.joint_levels = [] (or \
+                 view_memory = \"hold\")",
             ));
         }
         for (name, value) in [
@@ -382,7 +372,8 @@ impl FuseConfig {
             serde_json::to_value(base).map_err(|e| Error::invalid("fuse config defaults", e.to_string()))?;
         // a merge patch's null deletes its key; here it switches the stage off, as `false` does
         json_patch::merge(&mut merged, &null_as_false(overrides));
-        serde_json::from_value(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
+        // the derived (strict) deserializer: the document is complete now
+        FuseConfig::deserialize(merged).map_err(|e| Error::invalid("fuse config", e.to_string()))
     }
 
     /// A TOML document's keys over `base` ([`FuseConfig::with_overrides_on`]).
@@ -392,7 +383,8 @@ impl FuseConfig {
     /// or a number that is not finite.
     pub fn from_toml_on(base: Self, text: &str) -> Result<Self> {
         // parsed once as the config itself for messages with the line and key
-        let _: Self = toml::from_str(text).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
+        let strict = toml::Deserializer::parse(text).and_then(FuseConfig::deserialize);
+        strict.map_err(|e| Error::invalid("fuse config", e.to_string()))?;
         let document: toml::Value = toml::from_str(text).map_err(|e| Error::invalid("fuse config", e.to_string()))?;
         if let Some((key, v)) = non_finite(&document, "") {
             return Err(Error::invalid(key, format!("{v} is not a finite number")));
@@ -495,8 +487,8 @@ fn document_table(table: &mut toml_edit::Table, schema: &serde_json::Value, root
     }
 }
 
-/// The most iterations any stage's count (RANSAC, ICP levels, joint refinement, rounds: every key
-/// with `iterations` or `rounds` in its name) may ask for: a count from a config file is a loop
+/// The most iterations any stage's count (RANSAC, ICP levels, joint refinement: every key with
+/// `iterations` in its name) may ask for: a count from a config file is a loop
 /// bound, and 1e12 would run for days.
 pub const MAX_ITERATIONS: u64 = 100_000;
 
@@ -506,7 +498,7 @@ fn too_many_iterations(value: &serde_json::Value, key: &str) -> Option<(String, 
     let child = |k: &str| if key.is_empty() { k.to_string() } else { format!("{key}.{k}") };
     match value {
         Value::Object(map) => map.iter().find_map(|(k, v)| {
-            let counted = k.contains("iterations") || k.contains("rounds");
+            let counted = k.contains("iterations");
             match v.as_u64() {
                 Some(n) if counted && n > MAX_ITERATIONS => Some((child(k), n)),
                 _ => too_many_iterations(v, &child(k)),
@@ -562,10 +554,14 @@ mod tests {
         assert_eq!(c.registration.icp.levels, FuseConfig::default().registration.icp.levels);
         assert_eq!(c.registration.icp.levels.len(), 3);
         assert_eq!(c.registration.icp.convergence_translation_m, 1e-4);
-        // deserialized on its own, the table took its type's defaults
+        // deserialized with serde directly: the same, one default per key
         let alone: FuseConfig =
-            serde_json::from_value(json!({"registration": {"icp": {"kernel_scale_ratio": 0.5}}})).expect("parse");
-        assert_ne!(alone.registration.icp.levels, FuseConfig::default().registration.icp.levels);
+            serde_json::from_value(json!({"registration": {"icp": {"kernel_scale_ratio": 0.25}}})).expect("parse");
+        assert_eq!(alone, c);
+        let alone: FuseConfig = toml::from_str("[snap_plane]\ndistance_m = 0.02\n").expect("parse");
+        let snap = FuseConfig::default().snap_plane.map(|p| PlaneParams { distance_m: 0.02, ..p });
+        assert_eq!(alone, FuseConfig { snap_plane: snap, ..FuseConfig::default() });
+        assert_ne!(snap.map(|p| p.iterations), Some(PlaneParams::default().iterations), "the fuse's own default");
     }
 
     #[test]
@@ -652,19 +648,22 @@ mod tests {
         assert!(e.contains("pixel_step"), "{e}");
         assert!(FuseConfig::fast().check().is_ok());
         // the fast preset streams its views; the default holds them for the joint refinement
-        assert!(FuseConfig::fast().streams_views() && !FuseConfig::default().streams_views());
+        assert_eq!(
+            (FuseConfig::fast().view_memory, FuseConfig::default().view_memory),
+            (ViewMemory::Stream, ViewMemory::Hold)
+        );
         // streaming is asked for, not derived, and refused with what it cannot do
-        let mut rounds = FuseConfig::fast();
-        rounds.registration.refine_rounds = 1;
-        let e = rounds.check().expect_err("rounds while streaming").to_string();
-        assert!(e.contains("view_memory") && e.contains("refine_rounds = 0"), "{e}");
         let joint = FuseConfig { view_memory: ViewMemory::Stream, ..FuseConfig::default() };
-        assert!(joint.check().expect_err("joint while streaming").to_string().contains("joint_levels = []"));
-        rounds.view_memory = ViewMemory::Hold;
-        assert!(rounds.check().is_ok() && !rounds.streams_views());
+        let e = joint.check().expect_err("joint while streaming").to_string();
+        assert!(e.contains("view_memory") && e.contains("joint_levels = []"), "{e}");
         let mut held = FuseConfig::fast();
         held.view_memory = ViewMemory::Hold;
-        assert!(held.check().is_ok() && !held.streams_views(), "no rounds, no joint, held: valid");
+        assert!(held.check().is_ok(), "no joint levels, held: valid");
+        // the leave-one-out refinement rounds are gone: the key is refused, naming it
+        let e = FuseConfig::from_toml_on(FuseConfig::default(), "[registration]\nrefine_rounds = 2\n")
+            .expect_err("removed key")
+            .to_string();
+        assert!(e.contains("refine_rounds"), "{e}");
         // a partial document over the fast preset keeps the preset's other keys
         let c = FuseConfig::with_overrides_on(FuseConfig::fast(), &json!({"merge_voxel": {"voxel_size_m": 0.003}}))
             .expect("parse");

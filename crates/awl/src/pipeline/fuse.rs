@@ -3,19 +3,16 @@
 use std::time::Instant;
 
 use nalgebra::Isometry3;
-use rayon::prelude::*;
 
 use super::config::FuseConfig;
+use super::feed::Feed;
 use super::hand_eye::refine_hand_eye;
 use super::isolate::{drop_floor, keep_object};
-use super::multiview::{Registered, no_usable_view, register_views};
-use super::prepare::{Measured, Preparer, Views, prepare, stage_reports};
+use super::prepare::Preparer;
+use super::register::{Registered, register_views};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
-use super::stream::register_as_prepared;
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
-use crate::filter::voxel::VoxelParams;
-use crate::filter::voxel_merge::VoxelMerge;
 use crate::scan::Scan;
 use crate::smooth::mls;
 
@@ -47,83 +44,22 @@ fn timed<T>(
     Ok(value)
 }
 
-/// The views' measured points at their registered poses (world frame), to be merged at `voxel`.
-/// Each view's registration copy is freed first; measured points not held beside it are read
-/// again by their recipe (see [`Preparer::measured`]), the views in parallel.
-pub(super) fn world_parts(
-    preparer: &Preparer<'_>,
-    views: Views,
-    poses: &[Option<Isometry3<f64>>],
-    voxel: &VoxelParams,
-) -> Result<VoxelMerge> {
-    let merged: Vec<(usize, Measured, Isometry3<f64>)> = (views.into_iter().zip(poses).enumerate())
-        .filter_map(|(i, (view, pose))| Some((i, view.ok()?.into_measured(), (*pose)?)))
-        .collect();
-    let empty = VoxelMerge::new(voxel)?;
-    merged
-        .into_par_iter()
-        .map(|(i, measured, pose)| Ok((i, preparer.measured(i, measured)?.into_transformed(&pose))))
-        .try_fold(
-            || empty.clone(),
-            |mut parts, view: Result<(usize, PointCloud)>| {
-                let (i, cloud) = view?;
-                parts.add(i, cloud)?;
-                Ok(parts)
-            },
-        )
-        .try_reduce(
-            || empty.clone(),
-            |mut a, b| {
-                a.append(b);
-                Ok(a)
-            },
-        )
-}
-
-/// What the merge starts from: the merged views' measured points already at their poses, or the
-/// views themselves (the registration's copies) when the registration held them all.
-enum ToMerge {
-    Parts(VoxelMerge),
-    Views(Views),
-}
-
-/// Prepares and registers the views: as they are prepared when the poses are final once each view
-/// is judged (no refinement rounds, no joint refinement; see `stream`), otherwise all views first.
-/// Returns the registration and what the merge starts from.
-fn registered_views(
-    preparer: &Preparer<'_>,
+/// Prepares and registers the views, held or streamed (`view_memory`); the stages' reports go to
+/// `stages`. Returns the registration and the views' feed, which gives the merge its input.
+fn registered_views<'p, 'a>(
+    preparer: &'p Preparer<'a>,
     config: &FuseConfig,
     stages: &mut Vec<StageReport>,
     progress: Progress<'_>,
-) -> Result<(Registered, ToMerge)> {
-    let r = &config.registration;
-    if config.streams_views() {
-        progress("prepare and register views", 0, STAGES);
-        let streamed = register_as_prepared(preparer, r, &config.merge_voxel)?;
-        stages.extend(stage_reports(&streamed.tallies, None));
-        let merged = streamed.registered.poses.iter().filter(|p| p.is_some()).count();
-        stages.push(StageReport {
-            name: "register".into(),
-            points_in: 0,
-            points_out: merged,
-            seconds: streamed.register_seconds,
-        });
-        return Ok((streamed.registered, ToMerge::Parts(streamed.parts)));
-    }
+) -> Result<(Registered, Feed<'p, 'a>)> {
     progress("prepare views", 0, STAGES);
-    let views = prepare(preparer, stages);
-    if views.iter().all(|v| v.is_err()) {
-        return Err(no_usable_view(
-            views.iter().enumerate().filter_map(|(i, v)| Some((i, v.as_ref().err()?.as_str()))),
-        ));
-    }
+    let mut feed = Feed::new(preparer, config.view_memory, &config.merge_voxel)?;
     progress("register", 4, STAGES);
-    let registered = timed(stages, "register", 0, || {
-        let r = register_views(&views, r, &config.merge_voxel)?;
-        let merged = r.poses.iter().filter(|p| p.is_some()).count();
-        Ok((r, merged))
-    })?;
-    Ok((registered, ToMerge::Views(views)))
+    let registered = register_views(&mut feed, &config.registration, &config.merge_voxel)?;
+    stages.extend(feed.stage_reports());
+    let merged = registered.poses.iter().filter(|p| p.is_some()).count();
+    stages.push(StageReport { name: "register".into(), points_in: 0, points_out: merged, seconds: registered.seconds });
+    Ok((registered, feed))
 }
 
 /// Runs the whole modeling pipeline on `scan` (see the module docs of `pipeline`).
@@ -142,7 +78,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     if config.roi.radius_m.is_some() && focus.is_none() {
         warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
     }
-    let (registered, to_merge) = match registered_views(&preparer, config, &mut stages, progress) {
+    let (registered, feed) = match registered_views(&preparer, config, &mut stages, progress) {
         Ok(registered) => registered,
         // every view emptied by the region-of-interest crop: one error naming the key and the focus
         Err(e) => return Err(preparer.roi_error().unwrap_or(e)),
@@ -183,10 +119,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     }
     progress("merge", 5, STAGES);
     let merge_start = Instant::now();
-    let parts = match to_merge {
-        ToMerge::Parts(parts) => parts,
-        ToMerge::Views(views) => world_parts(&preparer, views, &registered.poses, &config.merge_voxel)?,
-    };
+    let parts = feed.into_parts(&registered.poses, &config.merge_voxel)?;
     let points_in = parts.len();
     let merged = parts.downsample()?;
     let seconds = merge_start.elapsed().as_secs_f64();

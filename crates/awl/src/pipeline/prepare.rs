@@ -3,23 +3,23 @@
 //! toward the view's camera (one stage): a depth view's outliers and normals come from its pixel
 //! grid (`organized`, a positive `pixel_window`, the default), before the voxel grid (which averages
 //! the normals); a cloud view (or any view with `pixel_window = 0`) is down-sampled first, then
-//! cleaned with one k-NN pass (`clean`). The views run in parallel, each through all the stages.
+//! cleaned with one k-NN pass (`clean`). Each view goes through all the stages in one call
+//! ([`Preparer::view`]).
 //!
 //! A depth view registered on smoothed copies of its points (`registration_smoothing_m`) has two
 //! copies: the registration's and the measured points the model is made of. A fuse that holds
 //! every view for its joint refinement keeps only a [`Recipe`] of the measured ones (which loaded
 //! points, their normals packed: ~4 bytes a point instead of 27) and loads the view again for the
-//! merge: on a 12-view box, peak RSS 193 -> 134 MB in the same time (BENCHMARKS.md 64).
+//! merge (the memory saved: BENCHMARKS.md 64).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Mutex, PoisonError};
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
-use rayon::prelude::*;
 
 use super::clean::{OnGrid, clean_on_grid, clean_with_normals};
-use super::config::FuseConfig;
+use super::config::{FuseConfig, ViewMemory};
 use super::report::StageReport;
 use crate::camera::every_nth_grid;
 use crate::cloud::{PointCloud, retain_at};
@@ -94,18 +94,6 @@ impl PreparedView {
     }
 }
 
-/// The copies of a view's points the per-view stages hold.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Copies {
-    /// The registration's (smoothed, with `registration_smoothing_m`) and the measured points.
-    Both,
-    /// The registration's, and the measured points' [`Recipe`] when they differ.
-    Registration,
-}
-
-/// One entry per scan view: the prepared view, or why it cannot be used.
-pub(crate) type Views = Vec<std::result::Result<PreparedView, String>>;
-
 /// The per-view stages, in order (`roi` and `plane normals` only when configured).
 const STAGES: [&str; 4] = ["load", "roi", "voxel + outliers + normals", "plane normals"];
 
@@ -141,7 +129,7 @@ fn cleaned_and_oriented(
     view: PreparedView,
     config: &FuseConfig,
     (width, height): (usize, usize),
-    copies: Copies,
+    memory: ViewMemory,
 ) -> Result<PreparedView> {
     let PreparedView { seed, cloud, pixels, .. } = view;
     let mut measured = None;
@@ -153,10 +141,10 @@ fn cleaned_and_oriented(
                 clean_on_grid(cloud, grid, config.pixel_window, &config.outliers, &config.normals, smoothing)?;
             let OnGrid { cloud: cleaned, measured: m, mut sources } = on_grid;
             let thinned = |c| downsample(&without_grazing(c, config.max_incidence_rad), &config.view_voxel);
-            measured = match (m, copies) {
+            measured = match (m, memory) {
                 (None, _) => None,
-                (Some(m), Copies::Both) => Some(Measured::Points(thinned(m)?)),
-                (Some(mut m), Copies::Registration) => {
+                (Some(m), ViewMemory::Stream) => Some(Measured::Points(thinned(m)?)),
+                (Some(mut m), ViewMemory::Hold) => {
                     if let Some(keep) = grazing_keep(&m, config.max_incidence_rad) {
                         m.retain_indices(&keep);
                         retain_at(&mut sources, &keep);
@@ -258,8 +246,9 @@ pub(crate) struct Preparer<'a> {
     rays: Option<Vec<[f32; 2]>>,
     /// The grid of the kept pixels (`pixel_step`), width and height.
     grid: (usize, usize),
-    /// Whether a prepared view holds its measured points beside their smoothed copies.
-    copies: Copies,
+    /// How the fuse holds its views: a view prepared for one that streams them holds its measured
+    /// points beside their smoothed copies, one for a fuse that holds them a [`Recipe`] of them.
+    memory: ViewMemory,
     /// The region of interest: radius and focus point (world frame).
     roi: Option<(f64, Point3<f64>)>,
     /// The point the cameras look at (see [`focus_point`]), when a region of interest is asked for.
@@ -276,9 +265,7 @@ impl<'a> Preparer<'a> {
         let seeds: Vec<Isometry3<f64>> = (0..scan.views.len()).filter_map(|i| scan.world_from_camera(i).ok()).collect();
         let focus = config.roi.radius_m.and_then(|_| focus_point(&seeds));
         let roi = config.roi.radius_m.zip(focus);
-        // held beside the registration's copies only when each view is merged as it registers
-        let copies = if config.streams_views() { Copies::Both } else { Copies::Registration };
-        Self { scan, config, rays, grid, copies, roi, focus, notes: Mutex::default() }
+        Self { scan, config, rays, grid, memory: config.view_memory, roi, focus, notes: Mutex::default() }
     }
 
     fn note(&self, f: impl FnOnce(&mut Notes)) {
@@ -334,12 +321,12 @@ impl<'a> Preparer<'a> {
     }
 
     /// View `i` through the per-view stages, and its points and time per stage. Its measured
-    /// points are held only when the fuse streams its views ([`FuseConfig::streams_views`]);
-    /// otherwise, when they differ from the registration's copies, the view holds their
-    /// [`Recipe`], for [`Preparer::measured`].
+    /// points are held only when the fuse streams its views (`view_memory`); otherwise, when they
+    /// differ from the registration's copies, the view holds their [`Recipe`], for
+    /// [`Preparer::measured`].
     pub(crate) fn view(&self, i: usize) -> (std::result::Result<PreparedView, String>, Tally) {
         let mut tally = Tally::default();
-        let view = self.prepare(i, self.copies, &mut tally);
+        let view = self.prepare(i, self.memory, &mut tally);
         if let Err(reason) = &view {
             self.note(|n| {
                 n.failed.insert(i, reason.clone());
@@ -368,9 +355,9 @@ impl<'a> Preparer<'a> {
 
     /// View `i` through the per-view stages: load and region of interest ([`Preparer::loaded`]),
     /// cleaning on the grid of the kept pixels, plane-normal snap.
-    fn prepare(&self, i: usize, copies: Copies, tally: &mut Tally) -> std::result::Result<PreparedView, String> {
+    fn prepare(&self, i: usize, memory: ViewMemory, tally: &mut Tally) -> std::result::Result<PreparedView, String> {
         let mut view = self.loaded(i, tally)?;
-        view = timed(2, tally, view, |v| cleaned_and_oriented(v, self.config, self.grid, copies))?;
+        view = timed(2, tally, view, |v| cleaned_and_oriented(v, self.config, self.grid, memory))?;
         if let Some(params) = &self.config.snap_plane {
             view = timed(3, tally, view, |v| snap_plane_normals(v, params))?;
         }
@@ -433,16 +420,6 @@ pub(crate) fn stage_reports(tallies: &[Tally], wall: Option<f64>) -> Vec<StageRe
     reports
 }
 
-/// Prepares every view in parallel (each through all the stages in one pass, so the raw views
-/// never pile up); failures are kept per view as messages. A stage's reported time is the
-/// prepare's wall time times the stage's share of the per-view work.
-pub(crate) fn prepare(preparer: &Preparer<'_>, reports: &mut Vec<StageReport>) -> Views {
-    let start = Instant::now();
-    let (views, tallies): (Views, Vec<Tally>) = (0..preparer.len()).into_par_iter().map(|i| preparer.view(i)).unzip();
-    reports.extend(stage_reports(&tallies, Some(start.elapsed().as_secs_f64())));
-    views
-}
-
 /// The view's points within `radius` of `focus` (world frame).
 fn within(mut v: PreparedView, radius: f64, focus: Point3<f64>) -> Result<PreparedView> {
     let r2 = (radius * radius) as f32;
@@ -483,12 +460,12 @@ mod tests {
         let scan = read_scan(&path).expect("read");
         let config = FuseConfig::default();
         let preparer = Preparer::new(&scan, &config);
-        assert_eq!(preparer.copies, Copies::Registration, "the default holds every view");
+        assert_eq!(preparer.memory, ViewMemory::Hold, "the default holds every view");
         let prepare =
             |i, copies| preparer.prepare(i, copies, &mut Tally::default()).unwrap_or_else(|e| panic!("view {i}: {e}"));
         let mut recipes = Vec::new();
         for i in 0..3 {
-            let (held, registered) = (prepare(i, Copies::Both), prepare(i, Copies::Registration));
+            let (held, registered) = (prepare(i, ViewMemory::Stream), prepare(i, ViewMemory::Hold));
             assert_eq!(held.cloud, registered.cloud, "view {i}: the registration's copies");
             let Some(Measured::Points(want)) = held.measured else { panic!("view {i}: measured points held") };
             let Some(recipe @ Measured::Recipe(_)) = registered.measured else { panic!("view {i}: a recipe") };
@@ -499,7 +476,7 @@ mod tests {
             let worst =
                 got.iter().zip(&want).map(|(a, b)| a.cast::<f64>().angle(&b.cast()).to_degrees()).fold(0.0, f64::max);
             assert!(worst < 0.01, "view {i}: normals {worst} deg apart");
-            recipes.push(prepare(i, Copies::Registration).measured);
+            recipes.push(prepare(i, ViewMemory::Hold).measured);
         }
         // view 2's depth image replaced by view 0's: its points are no longer those of its recipe
         let depth = |i: usize| match &scan.views[i].data {

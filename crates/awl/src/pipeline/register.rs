@@ -1,0 +1,489 @@
+//! Registration of the views, from a [`Feed`] that holds or streams them: the sequential pass
+//! (the anchor, the first usable view, at its recorded pose and fixing the model frame; then each
+//! view against the growing model, seeded by its recorded pose, judged by the acceptance rule),
+//! then the joint refinement of the anchor and the accepted views at once, which undoes the
+//! sequential pass's drift (`registration::joint`; held views only).
+
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+
+use super::config::{AcceptanceRule, RegistrationConfig, RejectPolicy};
+use super::feed::Feed;
+use super::prepare::PreparedView;
+use super::report::{ViewReport, ViewStatus};
+use crate::cloud::PointCloud;
+use crate::error::{Error, Result};
+use crate::filter::voxel::{VoxelAccumulator, VoxelParams};
+use crate::registration::{
+    IcpParams, IcpResult, JointLevelStats, Unobserved, refine_jointly, register_levels_expecting,
+};
+use crate::transform::rows_from_isometry;
+
+/// Final poses (`None`: left out) and one report per scan view.
+pub(super) struct Registered {
+    pub poses: Vec<Option<Isometry3<f64>>>,
+    pub reports: Vec<ViewReport>,
+    /// The joint refinement's levels (empty when off).
+    pub joint: Vec<JointLevelStats>,
+    pub warnings: Vec<String>,
+    /// The time spent registering, seconds (the views' preparation left out).
+    pub seconds: f64,
+}
+
+fn centroid(cloud: &PointCloud) -> Point3<f64> {
+    let sum = cloud.points.iter().fold(Vector3::zeros(), |a, p| a + p.coords.cast::<f64>());
+    Point3::from(sum / cloud.len().max(1) as f64)
+}
+
+/// Centroid displacement (m) and rotation (rad) between two poses of one view.
+fn correction(view: &PreparedView, from: &Isometry3<f64>, to: &Isometry3<f64>) -> (f64, f64) {
+    let c = centroid(&view.cloud);
+    ((to * c - from * c).norm(), (from.inverse() * to).rotation.angle())
+}
+
+/// The acceptance rule: `Ok` or the first failing check, with its numbers.
+fn judge(rule: &AcceptanceRule, r: &IcpResult, moved: (f64, f64)) -> std::result::Result<(), String> {
+    if rule.require_converged && !r.converged {
+        return Err(format!("ICP did not converge in {} iterations", r.iterations));
+    }
+    if r.fitness < rule.min_fitness {
+        return Err(format!("fitness {:.3} < {:.3}", r.fitness, rule.min_fitness));
+    }
+    if r.inlier_rmse_m > rule.max_inlier_rmse_m {
+        return Err(format!("inlier RMSE {:.2} mm > {:.2} mm", r.inlier_rmse_m * 1e3, rule.max_inlier_rmse_m * 1e3));
+    }
+    if r.observed_conditioning < rule.min_conditioning {
+        return Err(format!(
+            "ill-conditioned (degenerate geometry): {:.1e} < {:.1e}",
+            r.observed_conditioning, rule.min_conditioning
+        ));
+    }
+    if moved.0 > rule.max_correction_m {
+        return Err(format!("correction {:.1} mm > {:.1} mm", moved.0 * 1e3, rule.max_correction_m * 1e3));
+    }
+    if moved.1 > rule.max_correction_rad {
+        return Err(format!(
+            "correction {:.2} deg > {:.2} deg",
+            moved.1.to_degrees(),
+            rule.max_correction_rad.to_degrees()
+        ));
+    }
+    Ok(())
+}
+
+fn blank_report(index: usize, view: &std::result::Result<PreparedView, String>) -> ViewReport {
+    let (status, reason, points, seed) = match view {
+        Ok(v) => (ViewStatus::Excluded, String::new(), v.cloud.len(), Some(rows_from_isometry(&v.seed))),
+        Err(e) => (ViewStatus::Skipped, e.clone(), 0, None),
+    };
+    ViewReport {
+        index,
+        status,
+        reason,
+        points,
+        seed,
+        pose: None,
+        correction_mm: 0.0,
+        correction_deg: 0.0,
+        iterations: 0,
+        fitness: 0.0,
+        inlier_rmse_mm: 0.0,
+        conditioning: 0.0,
+        unobserved: Vec::new(),
+        converged: false,
+        levels: Vec::new(),
+    }
+}
+
+fn record(report: &mut ViewReport, r: &IcpResult) {
+    report.iterations += r.iterations;
+    report.fitness = r.fitness;
+    report.inlier_rmse_mm = r.inlier_rmse_m * 1e3;
+    report.conditioning = r.conditioning;
+    report.converged = r.converged;
+    report.levels = r.levels.clone();
+}
+
+/// The error of a scan with no usable view, naming each view's reason (view index, reason).
+fn no_usable_view<'a>(reasons: impl IntoIterator<Item = (usize, &'a str)>) -> Error {
+    let reasons: Vec<String> = reasons.into_iter().map(|(i, reason)| format!("view {i}: {reason}")).collect();
+    Error::invalid("scan", format!("no usable view ({})", reasons.join("; ")))
+}
+
+/// Marks the anchor's report.
+fn make_anchor(report: &mut ViewReport) {
+    report.status = ViewStatus::Anchor;
+    report.reason = "first usable view: fixes the model frame".into();
+}
+
+/// The pose a view is merged at after its registration `result` (`None`: left out), by the
+/// acceptance rule and the reject policy; its report filled in.
+fn settle(
+    config: &RegistrationConfig,
+    view: &PreparedView,
+    result: &IcpResult,
+    symmetries: &Symmetries,
+    report: &mut ViewReport,
+) -> Option<Isometry3<f64>> {
+    record(report, result);
+    report.unobserved = result.unobserved.clone();
+    let verdict =
+        judge(&config.accept, result, correction(view, &view.seed, &result.target_from_source)).and_then(|()| {
+            symmetries.unconfirmed(result).map_or(Ok(()), |u| {
+            Err(format!(
+                "ill-conditioned (degenerate geometry): {:.1e} < {:.1e}, a {:?} about axis {:.2?} unobserved in this \
+                 view only",
+                u.eigen_ratio, config.icp.unobserved_ratio, u.kind, u.axis
+            ))
+        })
+        });
+    match verdict {
+        Ok(()) => {
+            report.status = ViewStatus::Accepted;
+            Some(result.target_from_source)
+        }
+        Err(reason) => {
+            report.reason = reason;
+            (config.on_reject == RejectPolicy::KeepSeed).then(|| {
+                report.status = ViewStatus::SeedKept;
+                view.seed
+            })
+        }
+    }
+}
+
+/// The directions the views' registrations found unobserved, each with the number of views that
+/// found it. One that two or more views found is the object's (a symmetry: a cylinder's spin),
+/// held at the seed wherever it is weak; one that a single view found says that view saw too little
+/// of the surface, and the view is rejected as ill-conditioned (its seed may be centimetres off
+/// along it).
+#[derive(Debug, Default)]
+struct Symmetries {
+    found: Vec<(Unobserved, usize)>,
+}
+
+impl Symmetries {
+    /// Counts the directions `result` found unobserved.
+    fn note(&mut self, result: &IcpResult) {
+        for u in &result.unobserved {
+            match self.found.iter_mut().find(|(s, _)| s.same_as(u)) {
+                Some((_, count)) => *count += 1,
+                None => self.found.push((u.clone(), 1)),
+            }
+        }
+    }
+
+    /// The directions two or more views found.
+    fn confirmed(&self) -> Vec<Unobserved> {
+        self.found.iter().filter(|(_, count)| *count >= 2).map(|(u, _)| u.clone()).collect()
+    }
+
+    /// The first of `result`'s unobserved directions no other view found.
+    fn unconfirmed<'a>(&self, result: &'a IcpResult) -> Option<&'a Unobserved> {
+        let confirmed = self.confirmed();
+        result.unobserved.iter().find(|u| !confirmed.iter().any(|c| c.same_as(u)))
+    }
+}
+
+/// Writes a merged view's final `pose` and its correction from the seed into its report.
+fn place(report: &mut ViewReport, view: &PreparedView, pose: &Isometry3<f64>) {
+    let (dt, dr) = correction(view, &view.seed, pose);
+    report.correction_mm = dt * 1e3;
+    report.correction_deg = dr.to_degrees();
+    report.pose = Some(rows_from_isometry(pose));
+}
+
+/// The growing model as the ICP sees it: the merged views down-sampled at each ICP level's voxel
+/// size (the model's own voxel size for a level that does not down-sample), each kept up to date
+/// view by view instead of down-sampling the whole model again for every view and level.
+struct LevelModel {
+    levels: Vec<VoxelAccumulator>,
+}
+
+impl LevelModel {
+    fn new(icp: &IcpParams, voxel: &VoxelParams) -> Result<Self> {
+        let at = |v: f64| if v > 0.0 { VoxelParams { voxel_size_m: v } } else { *voxel };
+        let levels = icp.levels.iter().map(|l| VoxelAccumulator::new(&at(l.voxel_m))).collect::<Result<_>>()?;
+        Ok(Self { levels })
+    }
+
+    fn add(&mut self, cloud: &PointCloud) -> Result<()> {
+        use rayon::prelude::*;
+        self.levels.par_iter_mut().try_for_each(|l| l.add(cloud))
+    }
+
+    fn levels(&self) -> Vec<&PointCloud> {
+        self.levels.iter().map(VoxelAccumulator::cloud).collect()
+    }
+}
+
+/// The position in `remaining` of the unregistered view whose seed camera (`centre` of a view
+/// index) is nearest to a merged view's camera (ties: the first).
+fn next_view(centre: impl Fn(usize) -> Vector3<f64>, remaining: &[usize], merged: &[usize]) -> usize {
+    let mut best = (f64::INFINITY, 0);
+    for (pos, &i) in remaining.iter().enumerate() {
+        let d = merged.iter().map(|&m| (centre(i) - centre(m)).norm()).fold(f64::INFINITY, f64::min);
+        if d < best.0 {
+            best = (d, pos);
+        }
+    }
+    best.1
+}
+
+/// Registers the views of `feed`: the sequential pass, then the joint refinement of the held views
+/// (see the module docs).
+///
+/// # Errors
+/// [`Error::Invalid`] when no view is usable (naming each view's reason); errors of the ICP and
+/// voxel stages.
+pub(super) fn register_views(
+    feed: &mut Feed<'_, '_>,
+    config: &RegistrationConfig,
+    voxel: &VoxelParams,
+) -> Result<Registered> {
+    let mut registered = register_sequentially(feed, config, voxel)?;
+    let start = Instant::now();
+    let Registered { poses, reports, joint, warnings, .. } = &mut registered;
+    *joint = refine_joint(feed, config, poses, reports, warnings)?;
+    for (i, view) in feed.held() {
+        if let Some(pose) = poses[i] {
+            place(&mut reports[i], view, &pose);
+        }
+    }
+    registered.seconds += start.elapsed().as_secs_f64();
+    Ok(registered)
+}
+
+/// The sequential pass: the anchor (the first usable view) at its recorded pose, then each view
+/// against the growing model, the view nearest a merged one next, each judged by the acceptance
+/// rule; a view left out for an unobserved direction only it had found is tried again at the end,
+/// once later views have found it too. The next view is guessed as if the current one were
+/// merged, for a streaming feed to prepare it meanwhile (a wrong guess is kept for later).
+fn register_sequentially(
+    feed: &mut Feed<'_, '_>,
+    config: &RegistrationConfig,
+    voxel: &VoxelParams,
+) -> Result<Registered> {
+    let n = feed.len();
+    let mut reports: Vec<ViewReport> = (0..n).map(|i| blank_report(i, &Err(String::new()))).collect();
+    let take = |feed: &mut Feed<'_, '_>, reports: &mut [ViewReport], i: usize| {
+        let view = feed.take(i);
+        reports[i] = blank_report(i, &view);
+        view.ok()
+    };
+    let mut remaining: Vec<usize> = (0..n).collect();
+    let mut anchor = None;
+    while anchor.is_none() && !remaining.is_empty() {
+        let i = remaining.remove(0);
+        anchor = take(feed, &mut reports, i).map(|view| (i, view));
+    }
+    let Some((a, view)) = anchor else {
+        return Err(no_usable_view(reports.iter().map(|r| (r.index, r.reason.as_str()))));
+    };
+    let start = Instant::now();
+    let mut poses: Vec<Option<Isometry3<f64>>> = vec![None; n];
+    let mut model = LevelModel::new(&config.icp, voxel)?;
+    let merge = |feed: &mut Feed<'_, '_>,
+                 model: &mut LevelModel,
+                 (poses, report): (&mut [Option<Isometry3<f64>>], &mut ViewReport),
+                 i: usize,
+                 view: PreparedView,
+                 pose: Isometry3<f64>| {
+        model.add(&view.cloud.transformed(&pose))?;
+        place(report, &view, &pose);
+        feed.merge(i, view, &pose)?;
+        poses[i] = Some(pose);
+        Ok::<_, Error>(())
+    };
+    make_anchor(&mut reports[a]);
+    let seed = view.seed;
+    merge(feed, &mut model, (&mut poses, &mut reports[a]), a, view, seed)?;
+    let mut merged = vec![a];
+    let mut symmetries = Symmetries::default();
+    let mut unconfirmed = Vec::new();
+    let mut seconds = start.elapsed().as_secs_f64();
+    let centre = |feed: &Feed<'_, '_>, i: usize| feed.seed(i).map(|s| s.translation.vector).unwrap_or_default();
+    while !remaining.is_empty() {
+        let i = remaining.remove(next_view(|j| centre(feed, j), &remaining, &merged));
+        let Some(view) = take(feed, &mut reports, i) else { continue };
+        merged.push(i);
+        let guess = (!remaining.is_empty()).then(|| remaining[next_view(|j| centre(feed, j), &remaining, &merged)]);
+        merged.pop();
+        let (levels, expected) = (model.levels(), symmetries.confirmed());
+        let (result, icp_seconds) = feed.while_preparing(guess, || {
+            let start = Instant::now();
+            let r = register_levels_expecting(&view.cloud, &levels, &view.seed, &config.icp, &expected);
+            (r, start.elapsed().as_secs_f64())
+        });
+        drop(levels);
+        let start = Instant::now();
+        let result = result?;
+        symmetries.note(&result);
+        match settle(config, &view, &result, &symmetries, &mut reports[i]) {
+            Some(pose) => {
+                merge(feed, &mut model, (&mut poses, &mut reports[i]), i, view, pose)?;
+                merged.push(i);
+            }
+            None if !result.unobserved.is_empty() => unconfirmed.push((i, view, result.unobserved)),
+            None => {}
+        }
+        seconds += icp_seconds + start.elapsed().as_secs_f64();
+    }
+    let start = Instant::now();
+    let confirmed = symmetries.confirmed();
+    for (i, view, found) in unconfirmed {
+        if !found.iter().all(|u| confirmed.iter().any(|c| c.same_as(u))) {
+            continue;
+        }
+        let result = register_levels_expecting(&view.cloud, &model.levels(), &view.seed, &config.icp, &confirmed)?;
+        if let Some(pose) = settle(config, &view, &result, &symmetries, &mut reports[i]) {
+            merge(feed, &mut model, (&mut poses, &mut reports[i]), i, view, pose)?;
+        }
+    }
+    seconds += start.elapsed().as_secs_f64();
+    Ok(Registered { poses, reports, joint: Vec::new(), warnings: Vec::new(), seconds })
+}
+
+/// The joint refinement of the anchor and the accepted views (see `registration::joint`).
+fn refine_joint(
+    feed: &Feed<'_, '_>,
+    config: &RegistrationConfig,
+    poses: &mut [Option<Isometry3<f64>>],
+    reports: &[ViewReport],
+    warnings: &mut Vec<String>,
+) -> Result<Vec<JointLevelStats>> {
+    if config.joint_levels.is_empty() {
+        return Ok(Vec::new());
+    }
+    // (view index, view, pose) of the anchor and the accepted views
+    let joins = |i: usize| matches!(reports[i].status, ViewStatus::Anchor | ViewStatus::Accepted);
+    let members: Vec<(usize, &PreparedView, Isometry3<f64>)> =
+        feed.held().filter(|&(i, _)| joins(i)).filter_map(|(i, view)| Some((i, view, poses[i]?))).collect();
+    let clouds: Vec<&PointCloud> = members.iter().map(|m| &m.1.cloud).collect();
+    let mut joint: Vec<Isometry3<f64>> = members.iter().map(|m| m.2).collect();
+    let fixed = members.iter().position(|m| reports[m.0].status == ViewStatus::Anchor).unwrap_or(0);
+    // each view's unobserved directions stay where the sequential pass held them
+    let held: Vec<Vec<Vector6<f64>>> =
+        members.iter().map(|m| reports[m.0].unobserved.iter().map(Unobserved::constraint).collect()).collect();
+    let stats = refine_jointly(&clouds, &mut joint, fixed, &held, &config.joint_params())?;
+    // A view the joint step moved farther than its first gate left the basin it started in:
+    // keep the sequential poses.
+    let gate = config.joint_levels[0].max_correspondence_m;
+    let strayed = members.iter().zip(&joint).find_map(|(&(i, view, before), pose)| {
+        let moved = correction(view, &before, pose).0;
+        (moved > gate).then_some((i, moved))
+    });
+    if let Some((i, moved)) = strayed {
+        warnings.push(format!(
+            "joint refinement moved view {i} by {:.1} mm (more than its {:.1} mm gate): sequential poses kept",
+            moved * 1e3,
+            gate * 1e3
+        ));
+        return Ok(stats);
+    }
+    for (&(i, _, _), pose) in members.iter().zip(joint) {
+        poses[i] = Some(pose);
+    }
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::image::DepthImage;
+    use crate::pipeline::config::{FuseConfig, ViewMemory};
+    use crate::pipeline::prepare::Preparer;
+    use crate::scan::{Scan, ViewData};
+    use crate::sim::{SceneKind, SimParams, simulate};
+
+    /// A simulated 6-view box held in memory, view 1's depth image zeroed (no points: skipped).
+    fn scan_with_an_empty_view() -> Scan {
+        let sim = simulate(&SimParams { views: 6, seed: 3, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+        let mut scan = sim.in_memory_scan();
+        let ViewData::Images { depth, .. } = &mut scan.views[1].data else { panic!("an in-memory view") };
+        let (width, height) = (depth.width, depth.height);
+        *depth = Arc::new(DepthImage { width, height, data: vec![0; (width * height) as usize] });
+        scan
+    }
+
+    /// Registers and merges `scan`'s views as `config` says: the registration and the merged points.
+    fn registered(scan: &Scan, config: &FuseConfig) -> (Registered, PointCloud) {
+        let preparer = Preparer::new(scan, config);
+        let mut feed = Feed::new(&preparer, config.view_memory, &config.merge_voxel).expect("feed");
+        let registered = register_views(&mut feed, &config.registration, &config.merge_voxel).expect("register");
+        let parts = feed.into_parts(&registered.poses, &config.merge_voxel).expect("parts");
+        (registered, parts.downsample().expect("merged"))
+    }
+
+    /// Held or streamed, the same views in the same order, the same poses and reports and the same
+    /// merged points (normals within 0.05 deg: a held view's are read again packed, within 0.005 deg
+    /// a point, and a voxel's average of diverging normals spreads that), with a view
+    /// that has no points and with views rejected (then the streamed feed's guess of the next view
+    /// was wrong).
+    #[test]
+    fn held_and_streamed_views_register_alike() {
+        let scan = scan_with_an_empty_view();
+        let mut strict = FuseConfig::fast();
+        strict.registration.accept.max_correction_m = 0.012;
+        for streamed in [FuseConfig::fast(), strict] {
+            let held = FuseConfig { view_memory: ViewMemory::Hold, ..streamed.clone() };
+            let (want, want_model) = registered(&scan, &held);
+            let (got, got_model) = registered(&scan, &streamed);
+            assert_eq!(got.poses, want.poses);
+            assert_eq!(got.reports, want.reports);
+            assert!(got_model.len() > 20_000, "{} points", got_model.len());
+            assert_eq!((&got_model.points, &got_model.colors), (&want_model.points, &want_model.colors));
+            let (a, b) = (got_model.normals.expect("normals"), want_model.normals.expect("normals"));
+            let worst =
+                a.iter().zip(&b).map(|(a, b)| a.cast::<f64>().angle(&b.cast()).to_degrees()).fold(0.0, f64::max);
+            assert!(worst < 0.05, "normals {worst} deg apart");
+            let count = |s: ViewStatus| want.reports.iter().filter(|r| r.status == s).count();
+            assert_eq!(count(ViewStatus::Skipped), 1);
+            assert!(want.reports[1].reason.contains("no points"), "{}", want.reports[1].reason);
+            // rejected views, and with the fast config's rule registered ones too
+            let strict = streamed.registration.accept.max_correction_m < 0.05;
+            assert_eq!(count(ViewStatus::Accepted) + count(ViewStatus::Excluded), 4);
+            assert!(count(ViewStatus::Excluded) >= 1 && (strict || count(ViewStatus::Accepted) >= 2));
+        }
+    }
+
+    /// `on_reject = "keep-seed"`: a rejected view is merged at its recorded pose, its report says so
+    /// with the reason and a zero correction, and its points are in the model; the joint refinement
+    /// leaves it there. Excluded, the same view's points are not merged.
+    #[test]
+    fn a_rejected_view_is_kept_at_its_seed_when_asked() {
+        let scan = scan_with_an_empty_view();
+        let mut exclude = FuseConfig::default();
+        exclude.registration.accept.max_correction_m = 0.012;
+        let keep = FuseConfig {
+            registration: RegistrationConfig { on_reject: RejectPolicy::KeepSeed, ..exclude.registration.clone() },
+            ..exclude.clone()
+        };
+        let (excluded, excluded_model) = registered(&scan, &exclude);
+        let (kept, kept_model) = registered(&scan, &keep);
+        let count = |r: &Registered, s: ViewStatus| r.reports.iter().filter(|v| v.status == s).count();
+        assert!(count(&excluded, ViewStatus::Excluded) >= 1, "the 12 mm rule rejects a view");
+        assert_eq!((count(&excluded, ViewStatus::SeedKept), count(&kept, ViewStatus::Excluded)), (0, 0));
+        let rejected: Vec<usize> =
+            (kept.reports.iter()).filter(|r| r.status == ViewStatus::SeedKept).map(|r| r.index).collect();
+        assert!(!rejected.is_empty(), "a view kept at its seed");
+        for &i in &rejected {
+            let report = &kept.reports[i];
+            assert!(!report.reason.is_empty(), "view {i}: the rule's reason");
+            assert_eq!(kept.poses[i], scan.world_from_camera(i).ok(), "view {i} at its recorded pose");
+            assert_eq!(report.pose, kept.poses[i].as_ref().map(rows_from_isometry), "view {i}");
+            assert_eq!(report.correction_mm, 0.0, "view {i}");
+        }
+        // the kept views' points: at least 20 % more model points (each view sees ~1/6 of the box)
+        let more = kept_model.len() as f64 / excluded_model.len() as f64 - 1.0;
+        assert!(
+            more > 0.2 * rejected.len() as f64 / 5.0,
+            "{} -> {} model points",
+            excluded_model.len(),
+            kept_model.len()
+        );
+    }
+}
