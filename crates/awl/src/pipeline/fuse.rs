@@ -2,11 +2,11 @@
 
 use std::time::Instant;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector6};
 
 use super::config::FuseConfig;
 use super::feed::Feed;
-use super::hand_eye::refine_hand_eye;
+use super::hand_eye::{HandEyeReport, refine_hand_eye};
 use super::isolate::{drop_floor, keep_object};
 use super::prepare::Preparer;
 use super::register::{Registered, register_views};
@@ -32,34 +32,21 @@ pub struct FuseOutput {
 
 const STAGES: usize = 8;
 
-fn timed<T>(
-    reports: &mut Vec<StageReport>,
-    name: &str,
-    points_in: usize,
-    f: impl FnOnce() -> Result<(T, usize)>,
-) -> Result<T> {
-    let start = Instant::now();
-    let (value, points_out) = f()?;
-    reports.push(StageReport { name: name.into(), points_in, points_out, seconds: start.elapsed().as_secs_f64() });
-    Ok(value)
+/// What the stages have reported so far: their points and times, the warnings.
+struct Log {
+    stages: Vec<StageReport>,
+    warnings: Vec<String>,
 }
 
-/// Prepares and registers the views, held or streamed (`view_memory`); the stages' reports go to
-/// `stages`. Returns the registration and the views' feed, which gives the merge its input.
-fn registered_views<'p, 'a>(
-    preparer: &'p Preparer<'a>,
-    config: &FuseConfig,
-    stages: &mut Vec<StageReport>,
-    progress: Progress<'_>,
-) -> Result<(Registered, Feed<'p, 'a>)> {
-    progress("prepare views", 0, STAGES);
-    let mut feed = Feed::new(preparer, config.view_memory, &config.merge_voxel)?;
-    progress("register", 4, STAGES);
-    let registered = register_views(&mut feed, &config.registration, &config.merge_voxel)?;
-    stages.extend(feed.stage_reports());
-    let merged = registered.poses.iter().filter(|p| p.is_some()).count();
-    stages.push(StageReport { name: "register".into(), points_in: 0, points_out: merged, seconds: registered.seconds });
-    Ok((registered, feed))
+impl Log {
+    /// Runs stage `name` on `points_in` points: `f` gives its result and its points out.
+    fn timed<T>(&mut self, name: &str, points_in: usize, f: impl FnOnce(&mut Self) -> Result<(T, usize)>) -> Result<T> {
+        let start = Instant::now();
+        let (value, points_out) = f(self)?;
+        let seconds = start.elapsed().as_secs_f64();
+        self.stages.push(StageReport { name: name.into(), points_in, points_out, seconds });
+        Ok(value)
+    }
 }
 
 /// Runs the whole modeling pipeline on `scan` (see the module docs of `pipeline`).
@@ -70,98 +57,132 @@ fn registered_views<'p, 'a>(
 pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<FuseOutput> {
     config.check()?;
     let start = Instant::now();
-    let mut stages = Vec::new();
     // what reading the scan fixed (a pose re-orthonormalised) comes first
-    let mut warnings = scan.warnings.clone();
+    let mut log = Log { stages: Vec::new(), warnings: scan.warnings.clone() };
     let preparer = Preparer::new(scan, config);
-    let focus = preparer.focus;
-    if config.roi.radius_m.is_some() && focus.is_none() {
-        warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
-    }
-    let (registered, feed) = match registered_views(&preparer, config, &mut stages, progress) {
-        Ok(registered) => registered,
-        // every view emptied by the region-of-interest crop: one error naming the key and the focus
-        Err(e) => return Err(preparer.roi_error().unwrap_or(e)),
-    };
-    // what reading the views' files dropped, after what reading the manifest fixed
-    warnings.extend(preparer.load_warnings());
-    let skipped = registered.reports.iter().filter(|r| r.status == ViewStatus::Skipped);
-    warnings.extend(skipped.map(|r| format!("view {} skipped: {}", r.index, r.reason)));
-    if registered.reports.iter().filter(|r| r.status != ViewStatus::Skipped).count() == 1 {
-        warnings.push("only one usable view: nothing to register, the model is that view alone".into());
-    }
-    warnings.extend(registered.warnings.iter().cloned());
-    for r in &registered.reports {
-        match r.status {
-            ViewStatus::Excluded => warnings.push(format!("view {} rejected and left out: {}", r.index, r.reason)),
-            ViewStatus::SeedKept => {
-                warnings.push(format!("view {} rejected, merged at its seed pose: {}", r.index, r.reason))
-            }
-            _ => {}
-        }
-    }
-    let hand_eye = match &config.hand_eye {
-        Some(c) => timed(&mut stages, "hand-eye", 0, || {
-            let unobserved: Vec<Vec<nalgebra::Vector6<f64>>> = (registered.reports.iter())
-                .map(|r| r.unobserved.iter().map(|u| nalgebra::Vector6::from(u.twist)).collect())
-                .collect();
-            let report = refine_hand_eye(scan, &registered.poses, &unobserved, c)?;
-            let views = report.as_ref().map_or(0, |r| r.views_used.len());
-            Ok((report, views))
-        })?,
-        None => None,
-    };
-    if let Some(r) = hand_eye.as_ref().filter(|r| !r.refused.is_empty()) {
-        warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
-    }
-    if let Some(r) = hand_eye.as_ref().filter(|r| !r.warning.is_empty()) {
-        warnings.push(r.warning.clone());
-    }
+    let (registered, feed) = prepare_and_register(&preparer, config, &mut log, progress)?;
+    let hand_eye = hand_eye(scan, &registered, config, &mut log)?;
     progress("merge", 5, STAGES);
-    let merge_start = Instant::now();
-    let parts = feed.into_parts(&registered.poses, &config.merge_voxel)?;
-    let points_in = parts.len();
-    let merged = parts.downsample()?;
-    let seconds = merge_start.elapsed().as_secs_f64();
-    stages.push(StageReport { name: "merge".into(), points_in, points_out: merged.len(), seconds });
+    let merged = merge(feed, &registered.poses, config, &mut log)?;
     progress("isolate object", 6, STAGES);
-    let (n_in, mut floor, mut clusters) = (merged.len(), None, None);
-    let isolated = timed(&mut stages, "floor + clusters", n_in, || {
-        let (rest, f) = drop_floor(merged, &config.isolate, &mut warnings)?;
-        let (object, c) = keep_object(rest, &config.isolate, &mut warnings)?;
-        (floor, clusters) = (f, c);
+    let (object, floor, clusters) = log.timed("floor + clusters", merged.len(), |log| {
+        let (rest, floor) = drop_floor(merged, &config.isolate, &mut log.warnings)?;
+        let (object, clusters) = keep_object(rest, &config.isolate, &mut log.warnings)?;
         let n = object.len();
-        Ok((object, n))
+        Ok(((object, floor, clusters), n))
     })?;
-    if isolated.is_empty() {
+    if object.is_empty() {
         return Err(Error::invalid("model", "nothing left after floor removal and clustering"));
     }
     progress("smooth", 7, STAGES);
     let model = match &config.smoothing {
-        Some(params) => timed(&mut stages, "mls", isolated.len(), || {
-            let smoothed = mls(&isolated, params)?.cloud;
+        Some(params) => log.timed("mls", object.len(), |_| {
+            let smoothed = mls(&object, params)?.cloud;
             let n = smoothed.len();
             Ok((smoothed, n))
         })?,
-        None => isolated,
+        None => object,
     };
     progress("done", STAGES, STAGES);
     let report = FuseReport {
         format: REPORT_FORMAT.into(),
         scan: scan.dir.display().to_string(),
         config: config.clone(),
-        focus_world: focus.map(|p| [p.x, p.y, p.z]),
-        stages,
+        focus_world: preparer.focus.map(|p| [p.x, p.y, p.z]),
+        stages: log.stages,
         views: registered.reports,
         joint: registered.joint,
         floor,
         clusters,
         hand_eye,
         model_points: model.len(),
-        warnings,
+        warnings: log.warnings,
         seconds: start.elapsed().as_secs_f64(),
     };
     Ok(FuseOutput { model, poses: registered.poses, report })
+}
+
+/// Stages 1-3: the views prepared and registered, held or streamed (`view_memory`), and what
+/// they said. Returns the registration and the views' feed, which gives the merge its input.
+///
+/// # Errors
+/// No usable view (one error naming `roi.radius_m` when its crop emptied them); the ICP's and
+/// voxel errors.
+fn prepare_and_register<'p, 'a>(
+    preparer: &'p Preparer<'a>,
+    config: &FuseConfig,
+    log: &mut Log,
+    progress: Progress<'_>,
+) -> Result<(Registered, Feed<'p, 'a>)> {
+    if config.roi.radius_m.is_some() && preparer.focus.is_none() {
+        log.warnings.push("the views' optical axes do not meet: no region-of-interest crop".into());
+    }
+    progress("prepare views", 0, STAGES);
+    let mut feed = Feed::new(preparer, config.view_memory, &config.merge_voxel)?;
+    progress("register", 4, STAGES);
+    let registered = match register_views(&mut feed, &config.registration, &config.merge_voxel) {
+        Ok(registered) => registered,
+        // every view emptied by the region-of-interest crop: one error naming the key and the focus
+        Err(e) => return Err(preparer.roi_error().unwrap_or(e)),
+    };
+    log.stages.extend(feed.stage_reports());
+    let merged = registered.poses.iter().filter(|p| p.is_some()).count();
+    let seconds = registered.seconds;
+    log.stages.push(StageReport { name: "register".into(), points_in: 0, points_out: merged, seconds });
+    // what reading the views' files dropped, after what reading the manifest fixed
+    log.warnings.extend(preparer.load_warnings());
+    let skipped = registered.reports.iter().filter(|r| r.status == ViewStatus::Skipped);
+    log.warnings.extend(skipped.map(|r| format!("view {} skipped: {}", r.index, r.reason)));
+    if registered.reports.iter().filter(|r| r.status != ViewStatus::Skipped).count() == 1 {
+        log.warnings.push("only one usable view: nothing to register, the model is that view alone".into());
+    }
+    log.warnings.extend(registered.warnings.iter().cloned());
+    for r in &registered.reports {
+        match r.status {
+            ViewStatus::Excluded => log.warnings.push(format!("view {} rejected and left out: {}", r.index, r.reason)),
+            ViewStatus::SeedKept => {
+                log.warnings.push(format!("view {} rejected, merged at its seed pose: {}", r.index, r.reason))
+            }
+            _ => {}
+        }
+    }
+    Ok((registered, feed))
+}
+
+/// Stage 5: the merged views' measured points at their `poses`, on one voxel grid.
+fn merge(
+    feed: Feed<'_, '_>,
+    poses: &[Option<Isometry3<f64>>],
+    config: &FuseConfig,
+    log: &mut Log,
+) -> Result<PointCloud> {
+    let start = Instant::now();
+    let parts = feed.into_parts(poses, &config.merge_voxel)?;
+    let points_in = parts.len();
+    let merged = parts.downsample()?;
+    let seconds = start.elapsed().as_secs_f64();
+    log.stages.push(StageReport { name: "merge".into(), points_in, points_out: merged.len(), seconds });
+    Ok(merged)
+}
+
+/// Stage 4: the hand-eye refined from the registered base stops (`None`: off), and why not.
+fn hand_eye(scan: &Scan, registered: &Registered, config: &FuseConfig, log: &mut Log) -> Result<Option<HandEyeReport>> {
+    let Some(c) = &config.hand_eye else { return Ok(None) };
+    let report = log.timed("hand-eye", 0, |_| {
+        let unobserved: Vec<Vec<Vector6<f64>>> = (registered.reports.iter())
+            .map(|r| r.unobserved.iter().map(|u| Vector6::from(u.twist)).collect())
+            .collect();
+        let report = refine_hand_eye(scan, &registered.poses, &unobserved, c)?;
+        let views = report.as_ref().map_or(0, |r| r.views_used.len());
+        Ok((report, views))
+    })?;
+    if let Some(r) = report.as_ref().filter(|r| !r.refused.is_empty()) {
+        log.warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
+    }
+    if let Some(r) = report.as_ref().filter(|r| !r.warning.is_empty()) {
+        log.warnings.push(r.warning.clone());
+    }
+    Ok(report)
 }
 
 #[cfg(test)]
