@@ -253,6 +253,32 @@ fn pierce_with(su: &Setup, shot: &Path, name: &str, extra: &[&str]) -> (Output, 
     (out, j, script)
 }
 
+/// What reading the shot fixed reaches the user: a view pose off orthonormal by float32-sized
+/// rounding is re-orthonormalised, and the warning naming the shot's scan.json and the field is
+/// printed and written into plan.json.
+#[test]
+fn the_shot_s_load_warnings_are_printed_and_kept_in_the_plan() {
+    let su = setup(0);
+    let shot = su.dir.path().join("rounded_shot");
+    copy_dir(&su.shot, &shot);
+    let manifest = shot.join("scan.json");
+    let mut j = read_json(&manifest);
+    let view = j["views"][0].as_object_mut().expect("view 0");
+    let field =
+        ["T_base_ee", "T_world_base", "T_world_camera"].into_iter().find(|f| view.contains_key(*f)).expect("a pose");
+    let r00 = view[field][0][0].as_f64().expect("number");
+    view[field][0][0] = serde_json::json!(r00 + 1e-5);
+    std::fs::write(&manifest, serde_json::to_string_pretty(&j).expect("json")).expect("write");
+    let (out, plan, _) = pierce_with(&su, &shot, "rounded", &[]);
+    assert!(out.status.success(), "{}", text(&out));
+    let printed = text(&out);
+    let line = printed.lines().find(|l| l.starts_with("warning:") && l.contains("re-orthonormalised"));
+    let line = line.unwrap_or_else(|| panic!("no re-orthonormalised warning printed:\n{printed}"));
+    assert!(line.contains("rounded_shot") && line.contains(field), "{line}");
+    let warnings = plan.expect("plan")["warnings"].as_array().expect("warnings").clone();
+    assert!(warnings.iter().any(|w| w.as_str().is_some_and(|w| w.contains("re-orthonormalised"))), "{warnings:?}");
+}
+
 #[test]
 fn each_target_gets_a_predicted_bound_and_the_tolerance_gates_it() {
     let su = setup(0);

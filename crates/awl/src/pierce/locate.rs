@@ -310,7 +310,10 @@ pub fn locate(
         ));
     };
     let base_from_model_tag = base_from_tag * world_from_tag.inverse();
-    let mut warnings = estimate.warnings;
+    // what reading the shot fixed or dropped (each naming its file), then the tag's
+    let mut warnings = shot.warnings.clone();
+    warnings.extend(loaded.iter().flat_map(|v| v.warnings.iter().cloned()));
+    warnings.extend(estimate.warnings);
     let mut base_from_model = base_from_model_tag;
     let refinement = match &params.refine {
         Some(p) => {
