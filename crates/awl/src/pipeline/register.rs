@@ -218,12 +218,12 @@ impl LevelModel {
     }
 }
 
-/// The position in `remaining` of the unregistered view whose seed camera (`centre` of a view
+/// The position in `remaining` of the unregistered view whose seed camera (`centres`, by view
 /// index) is nearest to a merged view's camera (ties: the first).
-fn next_view(centre: impl Fn(usize) -> Vector3<f64>, remaining: &[usize], merged: &[usize]) -> usize {
+fn next_view(centres: &[Vector3<f64>], remaining: &[usize], merged: &[usize]) -> usize {
     let mut best = (f64::INFINITY, 0);
     for (pos, &i) in remaining.iter().enumerate() {
-        let d = merged.iter().map(|&m| (centre(i) - centre(m)).norm()).fold(f64::INFINITY, f64::min);
+        let d = merged.iter().map(|&m| (centres[i] - centres[m]).norm()).fold(f64::INFINITY, f64::min);
         if d < best.0 {
             best = (d, pos);
         }
@@ -303,12 +303,14 @@ fn register_sequentially(
     let mut symmetries = Symmetries::default();
     let mut unconfirmed = Vec::new();
     let mut seconds = start.elapsed().as_secs_f64();
-    let centre = |feed: &Feed<'_, '_>, i: usize| feed.seed(i).map(|s| s.translation.vector).unwrap_or_default();
+    // each view's recorded camera position, once (the origin for a view without a usable pose)
+    let centres: Vec<Vector3<f64>> =
+        (0..n).map(|i| feed.seed(i).map(|s| s.translation.vector).unwrap_or_default()).collect();
     while !remaining.is_empty() {
-        let i = remaining.remove(next_view(|j| centre(feed, j), &remaining, &merged));
+        let i = remaining.remove(next_view(&centres, &remaining, &merged));
         let Some(view) = take(feed, &mut reports, i) else { continue };
         merged.push(i);
-        let guess = (!remaining.is_empty()).then(|| remaining[next_view(|j| centre(feed, j), &remaining, &merged)]);
+        let guess = (!remaining.is_empty()).then(|| remaining[next_view(&centres, &remaining, &merged)]);
         merged.pop();
         let (levels, expected) = (model.levels(), symmetries.confirmed());
         let (result, icp_seconds) = feed.while_preparing(guess, || {
