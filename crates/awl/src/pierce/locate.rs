@@ -14,6 +14,7 @@
 //!    pose is kept and the reason reported.
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Vector6};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::PointCloud;
@@ -482,14 +483,7 @@ fn refine_with_depth(
 ) -> Result<ShotRefinement> {
     let points = shot_points(views, params.voxel_m)?;
     let model_from_base = seed.inverse();
-    let crop = (params.crop_m * params.crop_m) as f32;
-    let keep: Vec<usize> = (0..points.len())
-        .filter(|&i| {
-            let q = (model_from_base * points.points[i].cast::<f64>()).cast::<f32>();
-            model.index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
-        })
-        .collect();
-    let source = points.select(&keep);
+    let source = near_model(&points, model, &model_from_base, params.crop_m);
     let mut r = ShotRefinement {
         applied: false,
         base_from_model: *seed,
@@ -617,6 +611,27 @@ fn combine_views(
     Ok(Some(Combined { summary, base_from_model: e.model_from_world.inverse() }))
 }
 
+/// The points of `points` (source frame) within `crop_m` metres of the model placed by
+/// `model_from_source`, in their order.
+fn near_model(
+    points: &PointCloud,
+    model: &SurfaceModel<'_>,
+    model_from_source: &Isometry3<f64>,
+    crop_m: f64,
+) -> PointCloud {
+    let crop_sq = (crop_m * crop_m) as f32;
+    let keep: Vec<usize> = (0..points.len())
+        .into_par_iter()
+        .filter(|&i| {
+            let q = (model_from_source * points.points[i].cast::<f64>()).cast::<f32>();
+            // bounded by the crop (a little wider, for the f32 rounding of its square): a shot point
+            // far from the model (floor, clutter) visits few nodes
+            model.index.nearest_within(&q, crop_m as f32 * 1.0001).is_some_and(|n| n.dist_sq <= crop_sq)
+        })
+        .collect();
+    points.select(&keep)
+}
+
 /// One source registered onto the model.
 struct OnModel {
     model_from_source: Isometry3<f64>,
@@ -633,17 +648,11 @@ fn register_onto_model(
     model_from_source: &Isometry3<f64>,
     params: &ShotRefineParams,
 ) -> Result<Option<OnModel>> {
-    let crop = (params.crop_m * params.crop_m) as f32;
-    let keep: Vec<usize> = (0..points.len())
-        .filter(|&i| {
-            let q = (model_from_source * points.points[i].cast::<f64>()).cast::<f32>();
-            model.index.nearest(&q).is_some_and(|n| n.dist_sq <= crop)
-        })
-        .collect();
-    if keep.len() < params.min_points {
+    let near = near_model(points, model, model_from_source, params.crop_m);
+    if near.len() < params.min_points {
         return Ok(None);
     }
-    let icp = register(&points.select(&keep), model.cloud, model_from_source, &params.icp)?;
+    let icp = register(&near, model.cloud, model_from_source, &params.icp)?;
     let (dt, dr) = pose_difference(&icp.target_from_source, model_from_source);
     if icp.fitness < params.min_fitness || dt > params.max_correction_m || dr > params.max_correction_rad {
         return Ok(None);

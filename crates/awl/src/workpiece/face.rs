@@ -23,6 +23,7 @@
 //!    The 4 corners, their centre.
 
 use nalgebra::{Point2, Point3, Vector2, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -365,7 +366,8 @@ impl SurfaceModel<'_> {
         (Point3::from(c), n, eig.eigenvalues[k].max(0.0).sqrt())
     }
 
-    /// The plane's inliers among `near` connected to `seed` (module docs, step 3).
+    /// The plane's inliers among `near` connected to `seed` (module docs, step 3), grown front by
+    /// front, the front's neighbours found in parallel.
     fn grow_face(
         &self,
         near: &[usize],
@@ -391,17 +393,27 @@ impl SurfaceModel<'_> {
             d(a).total_cmp(&d(b)).then(a.cmp(&b))
         });
         let Some(start) = start else { return Vec::new() };
-        let (mut stack, mut face) = (vec![start], Vec::new());
+        let (mut front, mut face) = (vec![start], Vec::new());
         visited[start] = true;
-        while let Some(i) = stack.pop() {
-            face.push(i);
-            for n in self.index.within(&self.cloud.points[i], fp.link_m as f32) {
-                let j = n.index as usize;
-                if member[j] && !visited[j] {
-                    visited[j] = true;
-                    stack.push(j);
+        while !front.is_empty() {
+            let found: Vec<Vec<usize>> = front
+                .par_iter()
+                .map(|&i| {
+                    let near_i = self.index.within(&self.cloud.points[i], fp.link_m as f32);
+                    near_i.iter().map(|n| n.index as usize).filter(|&j| member[j]).collect()
+                })
+                .collect();
+            let mut next = Vec::new();
+            for near_i in &found {
+                for &j in near_i {
+                    if !visited[j] {
+                        visited[j] = true;
+                        next.push(j);
+                    }
                 }
             }
+            face.append(&mut front);
+            front = next;
         }
         face.sort_unstable();
         face
