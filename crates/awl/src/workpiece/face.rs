@@ -23,11 +23,11 @@
 //!    The 4 corners, their centre.
 
 use nalgebra::{Point2, Point3, Vector2, Vector3};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::segment::{PlaneParams, fit_plane_ransac};
+use crate::spatial::cells::CellGrid;
 use crate::workpiece::target_spec::TargetSpec;
 use crate::workpiece::targets::{SurfaceModel, SurfaceTarget, TargetParams};
 
@@ -291,7 +291,7 @@ impl SurfaceModel<'_> {
         // holds a strip of the face only
         let (mut face, mut fit, mut largest) = (Vec::new(), None, 0);
         for _ in 0..8 {
-            let grown = self.grow_face(&near, &normal, offset, &local.point, fp);
+            let grown = self.grow_face(&near, &normal, offset, &local.point, fp)?;
             largest = largest.max(grown.len());
             if grown.len() < fp.min_points.max(3) || grown.len() <= face.len() {
                 break;
@@ -366,8 +366,8 @@ impl SurfaceModel<'_> {
         (Point3::from(c), n, eig.eigenvalues[k].max(0.0).sqrt())
     }
 
-    /// The plane's inliers among `near` connected to `seed` (module docs, step 3), grown front by
-    /// front, the front's neighbours found in parallel.
+    /// The plane's inliers among `near` connected to `seed` (module docs, step 3): a flood fill over
+    /// a cell grid of the inliers, at `link_m`.
     fn grow_face(
         &self,
         near: &[usize],
@@ -375,7 +375,7 @@ impl SurfaceModel<'_> {
         offset: f64,
         seed: &Point3<f64>,
         fp: &FaceParams,
-    ) -> Vec<usize> {
+    ) -> Result<Vec<usize>> {
         let cos_max = fp.max_normal_rad.cos();
         let on_plane = |i: usize| {
             let x = self.cloud.points[i].cast::<f64>();
@@ -383,40 +383,41 @@ impl SurfaceModel<'_> {
             let agrees = self.cloud.normals.as_ref().is_none_or(|ns| ns[i].cast::<f64>().dot(normal).abs() >= cos_max);
             close && agrees
         };
-        let mut member = vec![false; self.cloud.len()];
-        for &i in near {
-            member[i] = on_plane(i);
-        }
-        let mut visited = vec![false; self.cloud.len()];
-        let start = near.iter().copied().filter(|&i| member[i]).min_by(|&a, &b| {
-            let d = |i: usize| (self.cloud.points[i].cast::<f64>() - seed).norm_squared();
-            d(a).total_cmp(&d(b)).then(a.cmp(&b))
+        let members: Vec<usize> = near.iter().copied().filter(|&i| on_plane(i)).collect();
+        let start = (0..members.len()).min_by(|&a, &b| {
+            let d = |k: usize| (self.cloud.points[members[k]].cast::<f64>() - seed).norm_squared();
+            d(a).total_cmp(&d(b)).then(members[a].cmp(&members[b]))
         });
-        let Some(start) = start else { return Vec::new() };
-        let (mut front, mut face) = (vec![start], Vec::new());
-        visited[start] = true;
-        while !front.is_empty() {
-            let found: Vec<Vec<usize>> = front
-                .par_iter()
-                .map(|&i| {
-                    let near_i = self.index.within(&self.cloud.points[i], fp.link_m as f32);
-                    near_i.iter().map(|n| n.index as usize).filter(|&j| member[j]).collect()
-                })
-                .collect();
-            let mut next = Vec::new();
-            for near_i in &found {
-                for &j in near_i {
-                    if !visited[j] {
-                        visited[j] = true;
-                        next.push(j);
-                    }
+        let Some(start) = start else { return Ok(Vec::new()) };
+        let points: Vec<Point3<f32>> = members.iter().map(|&i| self.cloud.points[i]).collect();
+        let link = fp.link_m as f32;
+        let grid = CellGrid::new(&points, link, "face link_m")?;
+        // grid position -> its cell, and member -> its grid position
+        let mut cell_of = vec![0; members.len()];
+        let mut position = vec![0; members.len()];
+        for c in 0..grid.keys.len() {
+            for s in grid.cell(c) {
+                cell_of[s] = c;
+                position[grid.perm[s] as usize] = s;
+            }
+        }
+        let mut visited = vec![false; members.len()];
+        let (mut stack, mut near_s) = (vec![position[start]], Vec::new());
+        visited[position[start]] = true;
+        while let Some(s) = stack.pop() {
+            let (runs, count) = grid.around(cell_of[s]);
+            grid.within(&runs[..count], s, link * link, &mut near_s);
+            for &t in &near_s {
+                if !visited[t as usize] {
+                    visited[t as usize] = true;
+                    stack.push(t as usize);
                 }
             }
-            face.append(&mut front);
-            front = next;
         }
+        let mut face: Vec<usize> =
+            (0..members.len()).filter(|&s| visited[s]).map(|s| members[grid.perm[s] as usize]).collect();
         face.sort_unstable();
-        face
+        Ok(face)
     }
 }
 
