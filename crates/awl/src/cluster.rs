@@ -1,4 +1,5 @@
-//! Clustering (DBSCAN) to isolate the object.
+//! Clustering (DBSCAN): the object isolated from the scene, a planar face's connected part
+//! (`workpiece::face`, every point core).
 //!
 //! [`dbscan`] labels every point with a cluster number or -1 (noise). A point is *core* when at least
 //! `min_points` points (itself included, as in Open3D and scikit-learn) lie within `eps_m` of it

@@ -25,9 +25,9 @@
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::cluster::{DbscanParams, dbscan};
 use crate::error::{Error, Result};
 use crate::segment::{PlaneParams, fit_plane_ransac};
-use crate::spatial::cells::CellGrid;
 use crate::workpiece::target_spec::TargetSpec;
 use crate::workpiece::targets::{SurfaceModel, SurfaceTarget, TargetParams};
 
@@ -366,8 +366,9 @@ impl SurfaceModel<'_> {
         (Point3::from(c), n, eig.eigenvalues[k].max(0.0).sqrt())
     }
 
-    /// The plane's inliers among `near` connected to `seed` (module docs, step 3): a flood fill over
-    /// a cell grid of the inliers, at `link_m`.
+    /// The plane's inliers among `near` connected to `seed` (module docs, step 3): of the inliers'
+    /// clusters at `link_m` (DBSCAN with every point core: the connected parts), the one holding the
+    /// inlier nearest `seed`.
     fn grow_face(
         &self,
         near: &[usize],
@@ -390,32 +391,10 @@ impl SurfaceModel<'_> {
         });
         let Some(start) = start else { return Ok(Vec::new()) };
         let points: Vec<Point3<f32>> = members.iter().map(|&i| self.cloud.points[i]).collect();
-        let link = fp.link_m as f32;
-        let grid = CellGrid::new(&points, link, "face link_m")?;
-        // grid position -> its cell, and member -> its grid position
-        let mut cell_of = vec![0; members.len()];
-        let mut position = vec![0; members.len()];
-        for c in 0..grid.keys.len() {
-            for s in grid.cell(c) {
-                cell_of[s] = c;
-                position[grid.perm[s] as usize] = s;
-            }
-        }
-        let mut visited = vec![false; members.len()];
-        let (mut stack, mut near_s) = (vec![position[start]], Vec::new());
-        visited[position[start]] = true;
-        while let Some(s) = stack.pop() {
-            let (runs, count) = grid.around(cell_of[s]);
-            grid.within(&runs[..count], s, link * link, &mut near_s);
-            for &t in &near_s {
-                if !visited[t as usize] {
-                    visited[t as usize] = true;
-                    stack.push(t as usize);
-                }
-            }
-        }
+        let parts = dbscan(&points, &DbscanParams { eps_m: fp.link_m, min_points: 1 })?;
+        let part = parts.labels[start];
         let mut face: Vec<usize> =
-            (0..members.len()).filter(|&s| visited[s]).map(|s| members[grid.perm[s] as usize]).collect();
+            members.iter().zip(&parts.labels).filter(|&(_, &l)| l == part).map(|(&i, _)| i).collect();
         face.sort_unstable();
         Ok(face)
     }
