@@ -102,16 +102,44 @@ fn a_hand_eye_1_deg_5_mm_off_is_detected_and_its_rotation_corrected() {
     let off = with_hand_eye_off(sim);
     let out = fuse_with(&off, &FuseConfig::default());
     let ((mm, deg), sigmas) = refined_error(&off, &out);
-    assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{sigmas:.2} sigma (measured 4.47)");
+    println!("box seed 1, 12 views: refined {mm:.2} mm {deg:.3} deg from the truth, {sigmas:.2} sigma");
+    assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{sigmas:.2} sigma (measured 4.79)");
     assert!(out.report.warnings.iter().any(|w| w.contains("recalibrate")), "{:?}", out.report.warnings);
-    // measured 0.164 deg; the translation only to 3.03 mm (not a third: see the closing note)
+    // 12 views, 2 a stop: measured 0.111 deg, and the translation only to 1.87 mm (3.03 mm with a
+    // Gaussian prior): six within-stop pairs carry the arm's 0.6 mm / 0.06 deg a view, and even the
+    // true camera motions with the recorded flange poses give 3.9 mm (seeds 2-4: 4.1-5.5 mm); the
+    // 36-view scans below, like the real sets (28 and 50 views), reach a third
     assert!(deg < 1.0 / 3.0, "rotation {deg:.3} deg");
-    assert!(mm < 4.0, "translation {mm:.2} mm");
+    assert!(mm < 2.5, "translation {mm:.2} mm");
     // the same on the cylinder alone, from its observed directions only
     let off = with_hand_eye_off(bare_cylinder());
     let out = fuse_with(&off, &FuseConfig::default());
     let ((mm, deg), sigmas) = refined_error(&off, &out);
+    println!("cylinder alone, 12 views: refined {mm:.2} mm {deg:.3} deg from the truth, {sigmas:.2} sigma");
     assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{sigmas:.2} sigma");
-    // measured 0.197 deg, 3.53 mm
-    assert!(deg < 1.0 / 3.0 && mm < 4.5, "{mm:.2} mm, {deg:.3} deg");
+    // measured 0.139 deg, 2.62 mm (0.197 deg, 3.53 mm with a Gaussian prior)
+    assert!(deg < 1.0 / 3.0 && mm < 3.5, "{mm:.2} mm, {deg:.3} deg");
+}
+
+#[test]
+fn a_hand_eye_1_deg_5_mm_off_is_corrected_from_a_36_view_scan() {
+    // the real sets that slid held 28 and 50 views; here 36 from 6 stops (6 a stop). Over box,
+    // shell and cylinder seeds 1-6, 1-6, 1-3 (measured): 13 of 15 within a third (0.57-1.50 mm), shell 3 and
+    // cylinder 3 at 1.97 and 1.96 mm; rotation 0.011-0.153 deg. One of each kind here.
+    for (scene, seed, within_mm) in [(SceneKind::Box, 3, 5.0 / 3.0), (SceneKind::Shell, 3, 2.2)] {
+        let sim = simulate(&SimParams { views: 36, seed, ..SimParams::scan(scene) }).expect("simulate");
+        let off = with_hand_eye_off(sim);
+        let out = fuse_with(&off, &FuseConfig::default());
+        let ((mm, deg), sigmas) = refined_error(&off, &out);
+        let he = out.report.hand_eye.as_ref().expect("hand-eye");
+        println!(
+            "{scene:?} seed {seed}: refined {mm:.2} mm {deg:.3} deg from the truth, {sigmas:.2} sigma, prior weight {:.2}",
+            he.prior_weight
+        );
+        assert!(sigmas > awl::pipeline::hand_eye::WRONG_PRIOR_SIGMAS, "{scene:?} seed {seed}: {sigmas:.2} sigma");
+        // the data outweigh the prior they contradict (the t tail; measured 0.36, 0.35)
+        assert!(he.prior_weight < 0.6, "{scene:?} seed {seed}: prior weight {}", he.prior_weight);
+        // measured: box 3 1.36 mm 0.068 deg, shell 3 1.97 mm 0.153 deg
+        assert!(mm < within_mm && deg < 1.0 / 3.0, "{scene:?} seed {seed}: {mm:.2} mm {deg:.3} deg");
+    }
 }

@@ -586,7 +586,7 @@ fn combine_views(
         warnings.push("no shot view registered onto the model on its own: the hand-eye is not combined".into());
         return Ok(None);
     }
-    let chain = ChainParams { noise: *noise, stops: StopPrior::Known, max_iterations: 30 };
+    let chain = ChainParams { noise: *noise, stops: StopPrior::Known, max_iterations: 30, prior_dof: None };
     let e = refine_chain(&views, &prior.prior, &chain)?;
     if e.residual_scale > MAX_RESIDUAL_SCALE {
         warnings.push(format!(

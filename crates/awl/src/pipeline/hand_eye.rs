@@ -27,6 +27,13 @@ pub struct HandEyeConfig {
     /// The recorded hand-eye's 1-sigma rotation error, radians. Default 0.2 deg (0.23-0.27 deg
     /// in all).
     pub prior_sigma_rad: f64,
+    /// Degrees of freedom of the prior's Student-t tail (see `handeye::chain::ChainParams`): a
+    /// recorded hand-eye the stops show to be farther off than its sigmas (a knocked or remounted
+    /// camera) is weighed less, down to `(ν + 6) / (ν + d²)` at Mahalanobis distance `d`; `false`:
+    /// a Gaussian prior. Default 6.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
+    pub prior_dof: Option<f64>,
     /// Each view's noise: the arm's pose error at the flange (default 0.7 mm, 0.07 deg per axis)
     /// and the registered camera pose's (default 0.3 mm, 0.02 deg).
     pub noise: ChainNoise,
@@ -49,6 +56,7 @@ impl Default for HandEyeConfig {
         Self {
             prior_sigma_m: 0.002,
             prior_sigma_rad: 0.2 * deg,
+            prior_dof: Some(6.0),
             noise: ChainNoise::default(),
             stop_sigma: Some([0.25 * deg, 0.25 * deg, 2.0 * deg, 0.03, 0.03, 0.005]),
             min_turn_rad: 5.0 * deg,
@@ -100,6 +108,10 @@ pub struct HandEyeReport {
     /// refined from the recorded one over the 6 axes (0 when not refined).
     #[serde(default)]
     pub prior_sigmas: f64,
+    /// The weight the recorded hand-eye's prior carried (1; less where `hand_eye.prior_dof`
+    /// discounted it because the stops contradict it; 0 when not refined).
+    #[serde(default)]
+    pub prior_weight: f64,
     /// Set when that exceeds [`WRONG_PRIOR_SIGMAS`]: the recorded hand-eye is wrong (empty otherwise).
     #[serde(default)]
     pub warning: String,
@@ -185,6 +197,7 @@ fn report_of(
         views_used: Vec::new(),
         unobserved_left_out: 0,
         prior_sigmas: 0.0,
+        prior_weight: estimate.map_or(0.0, |e| e.prior_weight),
         warning: String::new(),
         rotating_pairs: 0,
         axis_angle_deg: 0.0,
@@ -232,9 +245,11 @@ pub fn refine_hand_eye(
     config: &HandEyeConfig,
 ) -> Result<Option<HandEyeReport>> {
     let Some(recorded) = scan.ee_from_camera else { return Ok(None) };
-    for (name, v) in
-        [("hand_eye.prior_sigma_m", config.prior_sigma_m), ("hand_eye.prior_sigma_rad", config.prior_sigma_rad)]
-    {
+    for (name, v) in [
+        ("hand_eye.prior_sigma_m", config.prior_sigma_m),
+        ("hand_eye.prior_sigma_rad", config.prior_sigma_rad),
+        ("hand_eye.prior_dof", config.prior_dof.unwrap_or(1.0)),
+    ] {
         if !(v.is_finite() && v > 0.0) {
             return Err(Error::invalid(name, format!("{v} is not a positive number")));
         }
@@ -277,7 +292,8 @@ pub fn refine_hand_eye(
     };
     let estimate = if refused.is_empty() {
         let stops_prior = config.stop_sigma.map_or(StopPrior::Free, StopPrior::Sigma);
-        let params = ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30 };
+        let params =
+            ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30, prior_dof: config.prior_dof };
         let left_out: Vec<Vec<Vector6<f64>>> =
             views.iter().map(|(i, _)| unobserved.get(*i).cloned().unwrap_or_default()).collect();
         Some(refine_chain_observed(&chain, &left_out, &prior, &params)?)
