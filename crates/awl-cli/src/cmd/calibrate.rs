@@ -56,9 +56,13 @@ pub struct HandEyeArgs {
     /// Closed-form solver that starts the refinement.
     #[arg(long, value_enum, default_value = "park")]
     pub method: MethodArg,
-    /// Skip the nonlinear refinement (report the closed form).
+    /// Skip the nonlinear refinement (report the closed form; with --capture, no corner bias either).
     #[arg(long)]
     pub no_refine: bool,
+    /// With --capture: take the tag detections as they are, without estimating the detector's
+    /// corner bias from the views' spread of depths.
+    #[arg(long, requires = "capture")]
+    pub no_corner_bias: bool,
     /// Output JSON: T_ee_camera, T_base_target, method, per-pose residuals, rejected poses, warnings.
     #[arg(short, long, required_unless_present = "write_simulated")]
     pub output: Option<PathBuf>,
@@ -302,6 +306,8 @@ fn capture_json(dir: &Path, capture: &CaptureCalibration, params: &CaptureParams
         "views": views,
         "views_found": capture.poses.len(),
         "thorough_search": capture.thorough_search,
+        "corner_bias_px": capture.corner_bias_px,
+        "corner_bias_note": capture.corner_bias_note,
         "detector": params.detector,
         "max_rmse_px": params.max_rmse_px,
         "min_side_px": params.min_side_px,
@@ -321,7 +327,11 @@ fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
         }
     }
     check.output_file(output, "-o").check()?;
-    let params = CaptureParams { handeye: handeye_params(args)?, ..CaptureParams::default() };
+    let params = CaptureParams {
+        handeye: handeye_params(args)?,
+        corner_bias: !(args.no_corner_bias || args.no_refine),
+        ..CaptureParams::default()
+    };
     let calibration = calibrate_capture(&capture, &params)
         .with_context(|| format!("{}: hand-eye calibration from the capture failed", dir.display()))?;
     let result = &calibration.result;
@@ -351,6 +361,14 @@ fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
             ),
             (None, None) => println!("view {:3}: found", v.index),
         }
+    }
+    match calibration.corner_bias_px {
+        Some(b) => println!(
+            "the detector's corners lay {:.3} px {} the tag's: its translations corrected for it",
+            b.abs(),
+            if b >= 0.0 { "inside" } else { "outside" }
+        ),
+        None => println!("corner bias {}", calibration.corner_bias_note),
     }
     let t = result.ee_from_camera.translation.vector * 1e3;
     println!(
