@@ -209,6 +209,48 @@ fn bad_input_is_a_clear_error_and_nothing_is_written() {
     let e = fails(&other, &other.workpiece, &other.shot, &target);
     assert!(e.contains("id 5 not found") && e.contains("tag id 0 is not the declared id 5"), "{e}");
 
+    // a workpiece whose fuse found its model split: an absurd disagreement is refused by name, a
+    // plausible one widens every bound and is warned of
+    // (this workpiece is the CAD's, without a fuse: its hand-eye section is the shot's recorded
+    // T_ee_camera, not refined, with a 2 mm / 0.2 deg prior)
+    let mut j = read_json(&su.workpiece);
+    let recorded = read_json(&su.shot.join("scan.json"))["T_ee_camera"].clone();
+    let (r2, t2) = (0.2f64.to_radians().powi(2), 0.002f64.powi(2));
+    let covariance: Vec<Vec<f64>> = (0..6)
+        .map(|a| {
+            (0..6)
+                .map(|b| {
+                    if a != b {
+                        0.0
+                    } else if a < 3 {
+                        r2
+                    } else {
+                        t2
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    j["hand_eye"] = serde_json::json!({
+        "T_ee_camera_recorded": recorded, "T_ee_camera_refined": null, "refused": "not refined",
+        "correction_mm": 0.0, "correction_deg": 0.0, "sigma_deg": [0.2, 0.2, 0.2], "sigma_mm": [2.0, 2.0, 2.0],
+        "covariance": covariance, "data_sigma": [null, null, null, null, null, null],
+        "weakest_rotation": [[0.0, 0.0, 1.0], null], "weakest_translation": [[0.0, 0.0, 1.0], null],
+        "stops_used": [], "views_used": [], "rotating_pairs": 0, "axis_angle_deg": 0.0, "residual_scale": 0.0,
+        "rms_mm": 0.0, "rms_deg": 0.0, "rejected_disagreement_mm": 5000.0
+    });
+    let split = su.workpiece.with_file_name("split.json");
+    std::fs::write(&split, j.to_string()).expect("write");
+    let e = fails(&su, &split, &su.shot, &target);
+    assert!(e.contains("hand_eye.rejected_disagreement_mm") && e.contains("5000 mm"), "{e}");
+    j["hand_eye"]["rejected_disagreement_mm"] = serde_json::json!(12.0);
+    std::fs::write(&split, j.to_string()).expect("write");
+    let plan = su.dir.path().join("split_plan.json");
+    let out = awl(&["pierce", s(&split), "--shot", s(&su.shot), "--target", &target, "-o", s(&plan)]);
+    assert!(out.status.success() && text(&out).contains("12.0 mm apart"), "{}", text(&out));
+    let bound = read_json(&plan)["targets"][0]["predicted_error_mm"].as_f64().expect("bound");
+    assert!(bound > 2.79 * 6.0, "{bound} mm: at least the 95 % norm of a 6 mm isotropic sigma");
+
     // refusing to overwrite an input
     let out = awl(&["pierce", s(&su.workpiece), "--shot", s(&su.shot), "--target", &target, "-o", s(&su.workpiece)]);
     assert!(!out.status.success() && text(&out).contains("refusing to overwrite"), "{}", text(&out));

@@ -114,6 +114,8 @@ pub struct ChainEstimate {
     /// `sqrt(chi² / degrees of freedom)` of the weighted view residuals at the solution (1 when
     /// the noise model fits).
     pub residual_scale: f64,
+    /// Each view's weighted squared residual at the solution (its share of chi²), in input order.
+    pub view_chi2: Vec<f64>,
     /// RMS of the views' flange-frame residuals: translation (m), rotation (rad).
     pub rms_m: f64,
     /// ... rotation, radians.
@@ -427,6 +429,7 @@ pub fn refine_chain_observed(
         weakest_rotation: weakest(&marginal.fixed_view::<3, 3>(0, 0).into_owned()),
         weakest_translation: weakest(&marginal.fixed_view::<3, 3>(3, 3).into_owned()),
         residual_scale,
+        view_chi2: (0..views.len()).map(|i| r.fixed_rows::<6>(6 * i).norm_squared()).collect(),
         rms_m: (sum_t / views.len() as f64).sqrt(),
         rms_rad: (sum_r / views.len() as f64).sqrt(),
         iterations,

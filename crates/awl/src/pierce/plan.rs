@@ -50,6 +50,9 @@ pub struct PierceParams {
     pub predict: PredictParams,
     /// The most a target may be off for the tool to go.
     pub tolerance: Tolerance,
+    /// How far apart the fuse found parts of the model (workpiece.json
+    /// `hand_eye.rejected_disagreement_mm`), metres; 0: none. Added to each target's prediction.
+    pub model_disagreement_m: f64,
 }
 
 /// One target of the plan.
@@ -133,6 +136,20 @@ pub fn plan(
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
     let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
     let mut warnings = located.warnings.clone();
+    if !(0.0..=1.0).contains(&params.model_disagreement_m) {
+        return Err(Error::invalid(
+            "hand_eye.rejected_disagreement_mm",
+            format!("{} mm is not between 0 and 1000 mm", params.model_disagreement_m * 1e3),
+        ));
+    }
+    if params.model_disagreement_m > 0.0 {
+        warnings.push(format!(
+            "the fuse found parts of the model {:.1} mm apart (workpiece.json hand_eye.rejected_disagreement_mm: \
+             views of one base stop registered apart from where the arm put them): every target's bound includes \
+             it; re-scan for a model to pierce by",
+            params.model_disagreement_m * 1e3
+        ));
+    }
     let base_from_model = located.base_from_model;
     let tag_axis = -((base_from_model * world_from_tag).rotation * Vector3::z());
     let targets = placed
@@ -159,6 +176,7 @@ pub fn plan(
                 normal_model: surface.normal,
                 axis_base,
                 face_centre: surface.corners.is_some(),
+                model_disagreement_m: params.model_disagreement_m,
             };
             let prediction = predict(&base_from_model, &located.base_from_model_covariance, &geometry, &params.predict);
             let refusal = params.tolerance.refusal(&prediction);

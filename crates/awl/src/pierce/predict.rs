@@ -95,6 +95,9 @@ pub struct TargetGeometry {
     pub axis_base: Vector3<f64>,
     /// Whether it is a face centre (its in-plane position is estimated).
     pub face_centre: bool,
+    /// How far apart the fuse found parts of the model (`hand_eye.rejected_disagreement_mm` of
+    /// workpiece.json), metres: half of it is added as an isotropic 1-sigma (0: none).
+    pub model_disagreement_m: f64,
 }
 
 /// The prediction for one target located by `base_from_model`, whose error covariance is
@@ -114,6 +117,7 @@ pub fn predict(
     if target.face_centre {
         position_covariance += across * params.face_centre_sigma_m.powi(2);
     }
+    position_covariance += Matrix3::identity() * (0.5 * target.model_disagreement_m).powi(2);
     // the axis turns by the rotation's components across it
     let a = target.axis_base;
     let across_axis = Matrix3::identity() - a * a.transpose();
@@ -233,6 +237,7 @@ mod tests {
             normal_model: Vector3::z(),
             axis_base: -Vector3::z(),
             face_centre: false,
+            model_disagreement_m: 0.0,
         };
         let near = predict(&Isometry3::identity(), &c, &target(0.1), &params);
         let far = predict(&Isometry3::identity(), &c, &target(1.0), &params);
@@ -251,6 +256,14 @@ mod tests {
         let d = PredictParams::default();
         // isotropic when both model sigmas are equal
         assert!((face.position_bound_m - 2.7955 * d.model_sigma_m).abs() < 0.02 * d.model_sigma_m);
+        // a model whose parts the fuse found 18 mm apart: half of it a 1-sigma in every direction
+        let split = predict(
+            &Isometry3::identity(),
+            &Matrix6::zeros(),
+            &TargetGeometry { model_disagreement_m: 0.018, ..target(0.3) },
+            &params,
+        );
+        assert!((split.position_bound_m - 2.7955 * 0.009).abs() < 0.02 * 0.025, "{}", split.position_bound_m);
     }
 
     #[test]

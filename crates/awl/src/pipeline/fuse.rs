@@ -179,6 +179,14 @@ fn hand_eye(scan: &Scan, registered: &Registered, config: &FuseConfig, log: &mut
     if let Some(r) = report.as_ref().filter(|r| !r.refused.is_empty()) {
         log.warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
     }
+    if let Some(r) = report.as_ref().filter(|r| !r.stops_rejected.is_empty()) {
+        log.warnings.push(format!(
+            "hand-eye: base stop(s) {:?} left out: their views' registered motion disagrees with the arm's and the \
+             other stops' (more than {} times the noise model): a registration that slid along a face?",
+            r.stops_rejected,
+            super::hand_eye::MAX_RESIDUAL_SCALE
+        ));
+    }
     if let Some(r) = report.as_ref().filter(|r| !r.warning.is_empty()) {
         log.warnings.push(r.warning.clone());
     }

@@ -98,6 +98,16 @@ pub struct HandEyeReport {
     /// The base stops used (`base_stop` values, or the index of the first view of a group of
     /// views with identical `T_world_base`).
     pub stops_used: Vec<usize>,
+    /// The base stops left out because their views disagreed with the others' (a registration
+    /// that slid; see [`MAX_RESIDUAL_SCALE`]), in the order they were left out.
+    #[serde(default)]
+    pub stops_rejected: Vec<usize>,
+    /// The largest translation by which a rejected stop's registered camera motion between two of
+    /// its views disagrees with the arm's (through the refined hand-eye), millimetres (0: none
+    /// rejected): how far apart parts of the model may be. `awl pierce` adds it to each target's
+    /// predicted error.
+    #[serde(default)]
+    pub rejected_disagreement_mm: f64,
     /// The views used.
     pub views_used: Vec<usize>,
     /// The directions of motion the views' registrations left unobserved (`views[i].unobserved` of
@@ -194,6 +204,8 @@ fn report_of(
         weakest_translation: estimate
             .map_or(none, |e| (direction(&e.weakest_translation.0), finite_or_none(e.weakest_translation.1 * 1e3))),
         stops_used: Vec::new(),
+        stops_rejected: Vec::new(),
+        rejected_disagreement_mm: 0.0,
         views_used: Vec::new(),
         unobserved_left_out: 0,
         prior_sigmas: 0.0,
@@ -230,6 +242,53 @@ fn within_stop_diversity(views: &[ChainView], min_turn_rad: f64) -> (usize, f64)
     l.sort_by(f64::total_cmp);
     (rotating, 2.0 * l[1].clamp(0.0, 1.0).sqrt().asin())
 }
+
+/// Why `views` (grouped by stop) cannot determine the hand-eye (empty when they can), the
+/// rotating within-stop pairs and the angle their axes span (radians).
+fn refusal(views: &[(usize, ChainView)], config: &HandEyeConfig) -> (String, usize, f64) {
+    let chain: Vec<ChainView> = views.iter().map(|(_, v)| *v).collect();
+    let mut stops: Vec<usize> = chain.iter().map(|v| v.stop).collect();
+    stops.sort_unstable();
+    stops.dedup();
+    let (rotating, axis_angle) = within_stop_diversity(&chain, config.min_turn_rad);
+    let refused = if stops.len() < 2 {
+        format!(
+            "fewer than two usable stops: {} base stop(s) hold two or more registered views (views of one stop \
+             share `base_stop` or an identical T_world_base)",
+            stops.len()
+        )
+    } else if rotating < 2 || axis_angle < config.min_axis_angle_rad {
+        format!(
+            "parallel rotation axes: {rotating} within-stop view pairs turn more than {:.1} deg and their axes span \
+             {:.2} deg (need {:.1} deg): turn the flange about different axes at the stops",
+            config.min_turn_rad.to_degrees(),
+            axis_angle.to_degrees(),
+            config.min_axis_angle_rad.to_degrees()
+        )
+    } else {
+        String::new()
+    };
+    (refused, rotating, axis_angle)
+}
+
+/// The largest translation (metres) between a registered within-stop camera motion of the
+/// `stops` and the arm's through `ee_from_camera` (`X⁻¹ B X`).
+fn disagreement(views: &[(usize, ChainView)], stops: &[usize], ee_from_camera: &Isometry3<f64>) -> f64 {
+    let mut worst = 0.0_f64;
+    for (k, (_, a)) in views.iter().enumerate().filter(|(_, (_, v))| stops.contains(&v.stop)) {
+        for (_, b) in views[k + 1..].iter().filter(|(_, b)| b.stop == a.stop) {
+            let registered = a.model_from_camera.inverse() * b.model_from_camera;
+            let arm = ee_from_camera.inverse() * a.base_from_ee.inverse() * b.base_from_ee * ee_from_camera;
+            worst = worst.max((registered.inverse() * arm).translation.vector.norm());
+        }
+    }
+    worst
+}
+
+/// The views' residuals may exceed the noise model's by this factor (`sqrt(chi² / dof)`) before the
+/// stop that disagrees most is left out: 2, where the scans with consistent registrations measure
+/// 0.76-1.24.
+pub const MAX_RESIDUAL_SCALE: f64 = 2.0;
 
 /// Refines the scan's recorded hand-eye from the registered `poses` (`T_world_camera` per view,
 /// `None`: left out), each view's `unobserved` motions (twists of its pose in the world frame,
@@ -268,40 +327,59 @@ pub fn refine_hand_eye(
         views.iter().map(|(_, a)| views.iter().filter(|(_, b)| b.stop == a.stop).count()).collect();
     let mut kept = counts.iter().map(|&c| c >= 2);
     views.retain(|_| kept.next().unwrap_or(false));
+    let all_views = views.clone();
+    let stops_prior = config.stop_sigma.map_or(StopPrior::Free, StopPrior::Sigma);
+    let params =
+        ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30, prior_dof: config.prior_dof };
+    let gaussian = ChainParams { prior_dof: None, ..params };
+    let solve = |views: &[(usize, ChainView)], params: &ChainParams| {
+        let chain: Vec<ChainView> = views.iter().map(|(_, v)| *v).collect();
+        let left_out: Vec<Vec<Vector6<f64>>> =
+            views.iter().map(|(i, _)| unobserved.get(*i).cloned().unwrap_or_default()).collect();
+        refine_chain_observed(&chain, &left_out, &prior, params)
+    };
+    // stops whose views disagree with the rest (a registration that slid) are left out one at a
+    // time, the worst first, while the views' residuals exceed the noise model's
+    // MAX_RESIDUAL_SCALE times and the stops left can still determine the hand-eye; solved with a
+    // Gaussian prior meanwhile, so that the outliers stand out
+    let (mut refused, mut rotating, mut axis_angle) = refusal(&views, config);
+    let mut stops_rejected = Vec::new();
+    let mut estimate = None;
+    while refused.is_empty() {
+        let e = solve(&views, &gaussian)?;
+        if e.residual_scale <= MAX_RESIDUAL_SCALE {
+            estimate = Some(if params.prior_dof.is_some() { solve(&views, &params)? } else { e });
+            break;
+        }
+        let mut per_stop: Vec<(usize, f64, usize)> = Vec::new();
+        for ((_, v), chi2) in views.iter().zip(&e.view_chi2) {
+            match per_stop.iter_mut().find(|(s, _, _)| *s == v.stop) {
+                Some(entry) => (entry.1, entry.2) = (entry.1 + chi2, entry.2 + 1),
+                None => per_stop.push((v.stop, *chi2, 1)),
+            }
+        }
+        let worst = (per_stop.iter())
+            .max_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
+            .map_or(usize::MAX, |w| w.0);
+        let remaining: Vec<(usize, ChainView)> = views.iter().copied().filter(|(_, v)| v.stop != worst).collect();
+        let next = refusal(&remaining, config);
+        if !next.0.is_empty() {
+            // no stop can go: the estimate stands, its covariance scaled by the residuals
+            estimate = Some(e);
+            break;
+        }
+        stops_rejected.push(worst);
+        (views, (refused, rotating, axis_angle)) = (remaining, next);
+    }
     let mut stops_used: Vec<usize> = views.iter().map(|(_, v)| v.stop).collect();
     stops_used.sort_unstable();
     stops_used.dedup();
-    let chain: Vec<ChainView> = views.iter().map(|(_, v)| *v).collect();
-    let (rotating, axis_angle) = within_stop_diversity(&chain, config.min_turn_rad);
-    let refused = if stops_used.len() < 2 {
-        format!(
-            "fewer than two usable stops: {} base stop(s) hold two or more registered views (views of one stop \
-             share `base_stop` or an identical T_world_base)",
-            stops_used.len()
-        )
-    } else if rotating < 2 || axis_angle < config.min_axis_angle_rad {
-        format!(
-            "parallel rotation axes: {rotating} within-stop view pairs turn more than {:.1} deg and their axes span \
-             {:.2} deg (need {:.1} deg): turn the flange about different axes at the stops",
-            config.min_turn_rad.to_degrees(),
-            axis_angle.to_degrees(),
-            config.min_axis_angle_rad.to_degrees()
-        )
-    } else {
-        String::new()
-    };
-    let estimate = if refused.is_empty() {
-        let stops_prior = config.stop_sigma.map_or(StopPrior::Free, StopPrior::Sigma);
-        let params =
-            ChainParams { noise: config.noise, stops: stops_prior, max_iterations: 30, prior_dof: config.prior_dof };
-        let left_out: Vec<Vec<Vector6<f64>>> =
-            views.iter().map(|(i, _)| unobserved.get(*i).cloned().unwrap_or_default()).collect();
-        Some(refine_chain_observed(&chain, &left_out, &prior, &params)?)
-    } else {
-        None
-    };
     let mut report = report_of(&recorded, estimate.as_ref(), &prior, refused);
     report.stops_used = stops_used;
+    if let Some(e) = &estimate {
+        report.rejected_disagreement_mm = disagreement(&all_views, &stops_rejected, &e.ee_from_camera) * 1e3;
+    }
+    report.stops_rejected = stops_rejected;
     report.views_used = views.iter().map(|(i, _)| *i).collect();
     report.unobserved_left_out = views.iter().map(|(i, _)| unobserved.get(*i).map_or(0, Vec::len)).sum();
     report.rotating_pairs = rotating;
@@ -426,6 +504,28 @@ mod tests {
         poses[1] = None;
         let partial = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
         assert_eq!(partial.stops_used, vec![1, 2]);
+        // a view whose registration slid 20 mm: its stop is left out and named, the others decide
+        let (s, mut poses) = scan(5, spread, true);
+        poses[3] = poses[3].map(|p| Translation3::new(0.02, 0.0, 0.0) * p);
+        let slid = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert_eq!((slid.stops_rejected.clone(), slid.stops_used.clone()), (vec![1], vec![0, 2, 3, 4]));
+        assert!((slid.rejected_disagreement_mm - 20.0).abs() < 1.0, "{}", slid.rejected_disagreement_mm);
+        assert!(slid.residual_scale <= MAX_RESIDUAL_SCALE, "{}", slid.residual_scale);
+        let refined = crate::transform::isometry_from_rows(slid.refined.as_ref().expect("refined")).expect("rigid");
+        let after = crate::transform::pose_difference(&refined, &truth);
+        assert!(after.0 < 0.6 * before.0 && after.1 < 0.4 * before.1, "{before:?} -> {after:?}");
+        // the same without the slid view's stop
+        let (s, mut poses) = scan(5, spread, true);
+        poses[2] = None;
+        poses[3] = None;
+        let clean = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert!(clean.stops_rejected.is_empty() && clean.rejected_disagreement_mm == 0.0);
+        assert!(
+            (clean.correction_mm - slid.correction_mm).abs() < 1e-6,
+            "{} {}",
+            clean.correction_mm,
+            slid.correction_mm
+        );
         let bad = HandEyeConfig { prior_sigma_m: 0.0, ..HandEyeConfig::default() };
         assert!(refine_hand_eye(&s, &poses, &[], &bad).expect_err("zero sigma").to_string().contains("prior_sigma_m"));
     }
