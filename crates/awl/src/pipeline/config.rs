@@ -338,6 +338,9 @@ impl FuseConfig {
                 return Err(Error::invalid(name, format!("{v} is not a finite number >= 0")));
             }
         }
+        if let Some(h) = &self.hand_eye {
+            h.validate()?;
+        }
         r.icp.validate().map_err(|e| match e {
             Error::Invalid { what, message } => Error::invalid(format!("registration.{what}"), message),
             other => other,

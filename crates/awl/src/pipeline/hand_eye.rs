@@ -65,6 +65,41 @@ impl Default for HandEyeConfig {
     }
 }
 
+impl HandEyeConfig {
+    /// Checks the settings a fuse would otherwise reject only after registration.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the key that is not a positive number.
+    pub fn validate(&self) -> Result<()> {
+        let n = &self.noise;
+        for (name, v) in [
+            ("hand_eye.prior_sigma_m", self.prior_sigma_m),
+            ("hand_eye.prior_sigma_rad", self.prior_sigma_rad),
+            ("hand_eye.prior_dof", self.prior_dof.unwrap_or(1.0)),
+            ("hand_eye.noise.arm_m", n.arm_m),
+            ("hand_eye.noise.arm_rad", n.arm_rad),
+        ]
+        .into_iter()
+        .chain(self.stop_sigma.iter().flatten().map(|v| ("hand_eye.stop_sigma", *v)))
+        {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::invalid(name, format!("{v} is not a positive number")));
+            }
+        }
+        for (name, v) in [
+            ("hand_eye.noise.camera_m", n.camera_m),
+            ("hand_eye.noise.camera_rad", n.camera_rad),
+            ("hand_eye.min_turn_rad", self.min_turn_rad),
+            ("hand_eye.min_axis_angle_rad", self.min_axis_angle_rad),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(name, format!("{v} is not a finite number >= 0")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// What the refinement did (`report.json` `hand_eye`, `workpiece.json` `hand_eye`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HandEyeReport {
@@ -304,15 +339,7 @@ pub fn refine_hand_eye(
     config: &HandEyeConfig,
 ) -> Result<Option<HandEyeReport>> {
     let Some(recorded) = scan.ee_from_camera else { return Ok(None) };
-    for (name, v) in [
-        ("hand_eye.prior_sigma_m", config.prior_sigma_m),
-        ("hand_eye.prior_sigma_rad", config.prior_sigma_rad),
-        ("hand_eye.prior_dof", config.prior_dof.unwrap_or(1.0)),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(Error::invalid(name, format!("{v} is not a positive number")));
-        }
-    }
+    config.validate()?;
     let prior = ChainPrior::isotropic(recorded, config.prior_sigma_m, config.prior_sigma_rad);
     let stops = base_stops(scan);
     let mut views: Vec<(usize, ChainView)> = Vec::new();
@@ -526,6 +553,10 @@ mod tests {
             clean.correction_mm,
             slid.correction_mm
         );
+        // refused before the fuse registers anything
+        let bad_dof = HandEyeConfig { prior_dof: Some(-1.0), ..HandEyeConfig::default() };
+        let config = crate::pipeline::FuseConfig { hand_eye: Some(bad_dof), ..crate::pipeline::FuseConfig::default() };
+        assert!(config.check().expect_err("bad dof").to_string().contains("hand_eye.prior_dof"));
         let bad = HandEyeConfig { prior_sigma_m: 0.0, ..HandEyeConfig::default() };
         assert!(refine_hand_eye(&s, &poses, &[], &bad).expect_err("zero sigma").to_string().contains("prior_sigma_m"));
     }
