@@ -384,5 +384,9 @@ fn the_capture_calibration_corrects_the_corner_bias_to_within_1_mm() {
         assert!(alike.corner_bias_px.is_none(), "{:?}", alike.corner_bias_px);
         assert!(alike.corner_bias_note.contains("depths span"), "{}", alike.corner_bias_note);
         assert_eq!(alike.result.ee_from_camera, without.result.ee_from_camera);
+        let nan =
+            awl::handeye::CaptureParams { corner_bias_max_px: f64::NAN, ..awl::handeye::CaptureParams::default() };
+        let e = awl::handeye::calibrate_capture(&capture, &nan).expect_err("a NaN search range");
+        assert!(e.to_string().contains("corner_bias_max_px"), "{e}");
     }
 }

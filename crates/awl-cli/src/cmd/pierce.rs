@@ -195,7 +195,10 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         stroke: stroke(args)?,
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
         hand_eye: prior,
-        model_disagreement_m: workpiece.hand_eye.as_ref().map_or(0.0, |h| h.rejected_disagreement_mm * 1e-3),
+        model_disagreement_m: workpiece
+            .hand_eye
+            .as_ref()
+            .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
         tolerance: Tolerance {
             position_m: args.tolerance_mm.map(|t| t * 1e-3),
             axis_rad: args.tolerance_deg.map(f64::to_radians),

@@ -206,7 +206,10 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         params: PierceParams {
             locate: LocateParams::with_refinement(),
             hand_eye: Some(prior),
-            model_disagreement_m: workpiece.hand_eye.as_ref().map_or(0.0, |h| h.rejected_disagreement_mm * 1e-3),
+            model_disagreement_m: workpiece
+                .hand_eye
+                .as_ref()
+                .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
             ..PierceParams::default()
         },
         robot,

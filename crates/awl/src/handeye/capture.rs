@@ -386,6 +386,20 @@ pub fn calibrate_capture(capture: &Capture, params: &CaptureParams) -> Result<Ca
         }
         result = solve(&seen)?;
     }
+    if params.corner_bias
+        && !(params.corner_bias_max_px.is_finite()
+            && params.corner_bias_max_px > 0.0
+            && params.corner_bias_min_depth_ratio.is_finite()
+            && params.corner_bias_min_depth_ratio >= 1.0)
+    {
+        return Err(Error::invalid(
+            "corner_bias_max_px / corner_bias_min_depth_ratio",
+            format!(
+                "{} px and {} must be a positive number and a ratio >= 1",
+                params.corner_bias_max_px, params.corner_bias_min_depth_ratio
+            ),
+        ));
+    }
     let detected = poses_of(capture, &seen);
     let (mut poses, mut corner_bias_px, mut corner_bias_note) = (detected.clone(), None, String::new());
     if params.corner_bias {

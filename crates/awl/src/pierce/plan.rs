@@ -132,16 +132,16 @@ pub fn plan(
     params.stroke.validate()?;
     params.predict.validate()?;
     params.tolerance.validate()?;
-    let placed: Vec<SurfaceTarget> =
-        specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
-    let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
-    let mut warnings = located.warnings.clone();
     if !(0.0..=1.0).contains(&params.model_disagreement_m) {
         return Err(Error::invalid(
             "hand_eye.rejected_disagreement_mm",
             format!("{} mm is not between 0 and 1000 mm", params.model_disagreement_m * 1e3),
         ));
     }
+    let placed: Vec<SurfaceTarget> =
+        specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
+    let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
+    let mut warnings = located.warnings.clone();
     if params.model_disagreement_m > 0.0 {
         warnings.push(format!(
             "the fuse found parts of the model {:.1} mm apart (workpiece.json hand_eye.rejected_disagreement_mm: \

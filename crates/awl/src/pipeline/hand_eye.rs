@@ -174,6 +174,12 @@ pub struct HandEyeReport {
 }
 
 impl HandEyeReport {
+    /// [`HandEyeReport::rejected_disagreement_mm`] in metres: how far apart parts of the model may
+    /// be, for `pierce::PierceParams::model_disagreement_m`.
+    pub fn model_disagreement_m(&self) -> f64 {
+        self.rejected_disagreement_mm * 1e-3
+    }
+
     /// The hand-eye to use and its covariance: the refined one, else the recorded one.
     ///
     /// # Errors
