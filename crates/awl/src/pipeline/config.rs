@@ -83,6 +83,14 @@ pub struct RegistrationConfig {
     pub joint_convergence_translation_m: f64,
     /// A joint level converges when no view's step rotates more than this either, radians. Default 3e-5.
     pub joint_convergence_rotation_rad: f64,
+    /// A view seeded from a merged view of its base stop (the arm's recorded motion from it, see
+    /// `pipeline::register`) is registered with every ICP level's gate at most this, metres: its
+    /// seed is millimetres off, and a wider gate lets a view that sees a face and the floor lock
+    /// onto the wrong surface (BENCHMARKS.md "Stop-mate seeds").
+    /// Default 0.03; `false`: every view is seeded by its recorded pose.
+    #[serde(with = "crate::off")]
+    #[schemars(with = "Option<f64>")]
+    pub stop_seed_gate_m: Option<f64>,
 }
 
 impl Default for RegistrationConfig {
@@ -103,6 +111,7 @@ impl Default for RegistrationConfig {
             joint_source_points: 2500,
             joint_convergence_translation_m: 3e-5,
             joint_convergence_rotation_rad: 3e-5,
+            stop_seed_gate_m: Some(0.03),
         }
     }
 }
@@ -327,6 +336,12 @@ impl FuseConfig {
                 "view_memory",
                 "\"stream\" fixes each pose once its view is judged: it needs registration.joint_levels = [] (or \
                  view_memory = \"hold\")",
+            ));
+        }
+        if let Some(v) = r.stop_seed_gate_m.filter(|v| !v.is_finite() || *v <= 0.0) {
+            return Err(Error::invalid(
+                "registration.stop_seed_gate_m",
+                format!("{v} is not a positive number (or false)"),
             ));
         }
         for (name, value) in [

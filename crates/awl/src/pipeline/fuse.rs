@@ -9,7 +9,7 @@ use super::feed::Feed;
 use super::hand_eye::{HandEyeReport, refine_hand_eye};
 use super::isolate::{drop_floor, keep_object};
 use super::prepare::Preparer;
-use super::register::{Registered, register_views};
+use super::register::{Registered, StopMates, register_views};
 use super::report::{FuseReport, REPORT_FORMAT, StageReport, ViewStatus};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
@@ -120,7 +120,8 @@ fn prepare_and_register<'p, 'a>(
     progress("prepare views", 0, STAGES);
     let mut feed = Feed::new(preparer, config.view_memory, &config.merge_voxel)?;
     progress("register", 4, STAGES);
-    let registered = match register_views(&mut feed, &config.registration, &config.merge_voxel) {
+    let mates = StopMates::of(preparer.scan());
+    let registered = match register_views(&mut feed, &mates, &config.registration, &config.merge_voxel) {
         Ok(registered) => registered,
         // every view emptied by the region-of-interest crop: one error naming the key and the focus
         Err(e) => return Err(preparer.roi_error().unwrap_or(e)),

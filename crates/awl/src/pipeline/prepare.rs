@@ -315,6 +315,11 @@ impl<'a> Preparer<'a> {
         self.scan.views.len()
     }
 
+    /// The scan the views come from.
+    pub(crate) fn scan(&self) -> &'a Scan {
+        self.scan
+    }
+
     /// View `i`'s recorded pose, `None` when it is not usable.
     pub(crate) fn seed(&self, i: usize) -> Option<Isometry3<f64>> {
         self.scan.world_from_camera(i).ok()

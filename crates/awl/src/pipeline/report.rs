@@ -57,6 +57,10 @@ pub struct ViewReport {
     /// Final pose `T_world_camera` used for merging (absent for views left out).
     #[serde(rename = "T_world_camera")]
     pub pose: Option<Rows>,
+    /// The view of the same base stop whose registered pose seeded this one's ICP, through the
+    /// arm's recorded motion (`registration.stop_seed_gate_m`); absent: the recorded pose did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seeded_from_view: Option<usize>,
     /// Move of the view's centroid from the seed pose to the registered pose, millimetres.
     pub correction_mm: f64,
     /// Rotation from the seed pose to the registered pose, degrees.

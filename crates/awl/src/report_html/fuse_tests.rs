@@ -25,6 +25,7 @@ fn view(index: usize, status: ViewStatus, correction_mm: f64) -> ViewReport {
         points: 1000,
         seed: None,
         pose: None,
+        seeded_from_view: None,
         correction_mm,
         correction_deg: 0.5,
         iterations: 10,
