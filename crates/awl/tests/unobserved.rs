@@ -159,33 +159,36 @@ fn worst_view_mm(sim: &Simulation, out: &FuseOutput) -> (usize, f64) {
 
 #[test]
 fn views_seeded_from_their_stop_do_not_split_the_model() {
-    // box seed 7 seeded by the recorded poses alone: view 5's seed (29, 15, -15) mm off, its ICP
+    // Box seed 7 seeded by the recorded poses alone: view 5's seed (29, 15, -15) mm off, its ICP
     // from there slid 30 mm along a face at the 10 cm gate, and views 6-10 followed: half the
     // model 17.6-20.1 mm from the other half (completeness@5mm 81.9 %, 16.5 % off the object).
-    // Seeded from view 4 (same stop) and the arm's motion, view 5 starts 4.3 mm off and stays:
-    // completeness@5mm 98.4 %, nothing off the object.
-    let sim = simulate(&SimParams { seed: 7, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
-    let out = fuse_with(&sim, &FuseConfig::default());
-    let (view, mm) = worst_view_mm(&sim, &out);
-    // measured 1.44 mm (20.1 mm split before; 3.13 mm with the joint levels stopped at 30 iterations)
-    assert!(mm < 2.5, "view {view}: {mm:.2} mm from its true pose");
-    let seeded: Vec<Option<usize>> = out.report.views.iter().map(|v| v.seeded_from_view).collect();
-    // one view of each of the 6 stops of 2 views seeds the other
-    assert_eq!(seeded.iter().flatten().count(), 6, "{seeded:?}");
-    assert_eq!(seeded[5], Some(4), "{seeded:?}");
-    let he = out.report.hand_eye.as_ref().expect("hand-eye");
-    assert!(he.stops_rejected.is_empty(), "{:?}", he.stops_rejected);
-    let refined = awl::transform::isometry_from_rows(he.refined.as_ref().expect("refined")).expect("rigid");
-    let (t, r) = pose_difference(&refined, &sim.truth.ee_from_camera.expect("truth"));
-    // measured 2.69 mm / 0.045 deg (recorded 2.64 mm / 0.319 deg): 12 views bound the translation
-    // at about 2.2 mm RMS (bench/handeye_bound)
-    assert!(t < 0.0035 && r.to_degrees() < 0.1, "{} mm {} deg", t * 1e3, r.to_degrees());
+    // Seeded from view 4 (same stop) and the arm's motion, view 5 starts 4.3 mm off and stays.
+    // Box seed 16: view 3, the first of its stop, slid 27 mm / 1.9 deg from its SLAM seed and
+    // views 4-5 followed; the joint refinement brings them back at a 20 mm gate (12 mm: 12.4 mm
+    // too far, its poses dropped). Measured (worst view, hand-eye from the truth): seed 7 1.61 mm,
+    // 2.77 mm / 0.045 deg (recorded 2.64 mm / 0.319 deg); seed 16 2.82 mm, 0.65 mm / 0.051 deg
+    // (recorded 2.56 mm / 0.289 deg). 12 views bound the hand-eye's translation at about 2.2 mm RMS
+    // (bench/handeye_bound).
+    for (seed, max_view_mm) in [(7, 2.5), (16, 4.0)] {
+        let sim = simulate(&SimParams { seed, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+        let out = fuse_with(&sim, &FuseConfig::default());
+        let (view, mm) = worst_view_mm(&sim, &out);
+        assert!(mm < max_view_mm, "seed {seed}: view {view} {mm:.2} mm from its true pose");
+        let seeded: Vec<Option<usize>> = out.report.views.iter().map(|v| v.seeded_from_view).collect();
+        // one view of each of the 6 stops of 2 views seeds the other
+        assert_eq!(seeded.iter().flatten().count(), 6, "seed {seed}: {seeded:?}");
+        let he = out.report.hand_eye.as_ref().expect("hand-eye");
+        assert!(he.stops_rejected.is_empty(), "seed {seed}: {:?}", he.stops_rejected);
+        let refined = awl::transform::isometry_from_rows(he.refined.as_ref().expect("refined")).expect("rigid");
+        let (t, r) = pose_difference(&refined, &sim.truth.ee_from_camera.expect("truth"));
+        assert!(t < 0.0035 && r.to_degrees() < 0.1, "seed {seed}: {} mm {} deg", t * 1e3, r.to_degrees());
+    }
 }
 
 #[test]
 fn a_scan_whose_registration_split_leaves_the_split_stops_out_of_the_hand_eye() {
     // box seed 7 registered as before the stop seeds (`registration.stop_seed_gate_m = false`, the
-    // joint levels stopped at 30 iterations): half the views
+    // joint refinement's first gate 12 mm and its levels stopped at 30 iterations): half the views
     // (5-10) registered 17.6-20.1 mm from where the others put them (a slide between two groups of
     // views); stops 2 and 5 hold a view on each side. Measured: they are left out (views'
     // residuals 3.6x the noise model with them), the refined hand-eye 2.43 mm / 0.053 deg from the
@@ -196,6 +199,7 @@ fn a_scan_whose_registration_split_leaves_the_split_stops_out_of_the_hand_eye() 
     for level in &mut config.registration.joint_levels {
         level.max_iterations = 30;
     }
+    config.registration.joint_levels[0].max_correspondence_m = 0.012;
     let out = fuse_with(&sim, &config);
     assert!(worst_view_mm(&sim, &out).1 > 15.0, "the split: {:?}", worst_view_mm(&sim, &out));
     let he = out.report.hand_eye.as_ref().expect("hand-eye");
