@@ -651,11 +651,20 @@ mod tests {
             let e = c.check().expect_err("bad sequential threshold").to_string();
             assert!(e.contains("registration.icp.convergence_translation_m"), "{e}");
             let mut c = FuseConfig::default();
+            c.registration.stop_seed_gate_m = Some(bad);
+            let e = c.check().expect_err("bad stop seed gate").to_string();
+            assert!(e.contains("registration.stop_seed_gate_m"), "{e}");
+            let mut c = FuseConfig::default();
             c.registration.icp.max_tangential_voxels = Some(bad);
             let e = c.check().expect_err("bad tangential gate").to_string();
             assert!(e.contains("registration.icp.max_tangential_voxels"), "{e}");
         }
         let mut c = FuseConfig::default();
+        c.registration.stop_seed_gate_m = Some(0.0);
+        let e = c.check().expect_err("zero stop seed gate").to_string();
+        assert!(e.contains("registration.stop_seed_gate_m") && e.contains("positive"), "{e}");
+        c.registration.stop_seed_gate_m = None;
+        assert!(c.check().is_ok(), "stop seeds off are valid");
         c.registration.icp.kernel_scale_ratio = 0.0;
         let e = c.check().expect_err("zero kernel scale").to_string();
         assert!(e.contains("registration.icp.kernel_scale_ratio"), "{e}");

@@ -120,7 +120,7 @@ fn prepare_and_register<'p, 'a>(
     progress("prepare views", 0, STAGES);
     let mut feed = Feed::new(preparer, config.view_memory, &config.merge_voxel)?;
     progress("register", 4, STAGES);
-    let mates = StopMates::of(preparer.scan());
+    let mates = StopMates::of(preparer.scan(), config.registration.stop_seed_gate_m);
     let registered = match register_views(&mut feed, &mates, &config.registration, &config.merge_voxel) {
         Ok(registered) => registered,
         // every view emptied by the region-of-interest crop: one error naming the key and the focus

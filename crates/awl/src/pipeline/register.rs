@@ -31,14 +31,18 @@ use crate::transform::rows_from_isometry;
 /// that of the arm, without the stop's SLAM error.
 #[derive(Debug, Clone, Default)]
 pub(super) struct StopMates {
+    /// `registration.stop_seed_gate_m`: the ICP gate of a view seeded from its stop, metres.
+    gate_m: f64,
     /// Per view: its stop and `T_base_camera` (`None`: a view posed directly, or by a chain
-    /// without a hand-eye).
+    /// without a hand-eye); empty when stop seeds are off.
     views: Vec<Option<(usize, Isometry3<f64>)>>,
 }
 
 impl StopMates {
-    /// The stops of `scan`'s views (`pipeline::hand_eye::base_stops`).
-    pub(super) fn of(scan: &Scan) -> Self {
+    /// The stops of `scan`'s views (`pipeline::hand_eye::base_stops`) for seeds gated at `gate_m`
+    /// (`registration.stop_seed_gate_m`; `None`: no view is seeded from its stop).
+    pub(super) fn of(scan: &Scan, gate_m: Option<f64>) -> Self {
+        let Some(gate_m) = gate_m else { return Self::default() };
         let stops = super::hand_eye::base_stops(scan);
         let views = (scan.views.iter().zip(stops))
             .map(|(v, stop)| match (v.pose, scan.ee_from_camera, stop) {
@@ -48,10 +52,10 @@ impl StopMates {
                 _ => None,
             })
             .collect();
-        Self { views }
+        Self { gate_m, views }
     }
 
-    /// Each view's stop (`None`: a view that cannot be seeded from its stop).
+    /// Each view's stop (`None`: a view that cannot be seeded from its stop; empty: none can).
     fn stops(&self) -> Vec<Option<usize>> {
         self.views.iter().map(|v| v.map(|(stop, _)| stop)).collect()
     }
@@ -66,6 +70,23 @@ impl StopMates {
             let pose = poses.get(m).copied().flatten()?;
             (m != i && mate_stop == stop).then(|| (m, pose * mate_base_from_camera.inverse() * base_from_camera))
         })
+    }
+
+    /// The seed of view `i`, the view of its stop that gave it, and the ICP parameters it is
+    /// registered with: its stop-mate's seed with every level of `icp` gated at most `gate_m`, else
+    /// its `recorded` pose and `icp` as it is.
+    fn seed_for(
+        &self,
+        icp: &IcpParams,
+        (i, recorded): (usize, &Isometry3<f64>),
+        poses: &[Option<Isometry3<f64>>],
+    ) -> (Isometry3<f64>, Option<usize>, IcpParams) {
+        let Some((m, seed)) = self.seed(i, poses) else { return (*recorded, None, icp.clone()) };
+        let mut icp = icp.clone();
+        for level in &mut icp.levels {
+            level.max_correspondence_m = level.max_correspondence_m.min(self.gate_m);
+        }
+        (seed, Some(m), icp)
     }
 }
 
@@ -202,24 +223,6 @@ fn settle(
             })
         }
     }
-}
-
-/// The seed of view `i`, the view of its stop that gave it, and the ICP parameters it is
-/// registered with: its stop-mate's seed with every level's gate at most `stop_seed_gate_m`, else
-/// its recorded pose and the ICP's own levels.
-fn seed_for(
-    config: &RegistrationConfig,
-    mates: &StopMates,
-    (i, recorded): (usize, &Isometry3<f64>),
-    poses: &[Option<Isometry3<f64>>],
-) -> (Isometry3<f64>, Option<usize>, IcpParams) {
-    let mate = config.stop_seed_gate_m.and_then(|gate| Some((gate, mates.seed(i, poses)?)));
-    let Some((gate, (m, seed))) = mate else { return (*recorded, None, config.icp.clone()) };
-    let mut icp = config.icp.clone();
-    for level in &mut icp.levels {
-        level.max_correspondence_m = level.max_correspondence_m.min(gate);
-    }
-    (seed, Some(m), icp)
 }
 
 /// The directions the views' registrations found unobserved, each with the number of views that
@@ -380,8 +383,8 @@ fn register_sequentially(
     let mut symmetries = Symmetries::default();
     let mut left_out = Vec::new();
     let mut seconds = start.elapsed().as_secs_f64();
+    let stops = mates.stops();
     // each view's recorded camera position, once (the origin for a view without a usable pose)
-    let stops = if config.stop_seed_gate_m.is_some() { mates.stops() } else { Vec::new() };
     let centres: Vec<Vector3<f64>> =
         (0..n).map(|i| feed.seed(i).map(|s| s.translation.vector).unwrap_or_default()).collect();
     while !remaining.is_empty() {
@@ -391,7 +394,7 @@ fn register_sequentially(
         let guess = (!remaining.is_empty()).then(|| remaining[next_view(&centres, &stops, &remaining, &merged)]);
         merged.pop();
         let (levels, expected) = (model.levels(), symmetries.confirmed());
-        let (seed, mate, icp) = seed_for(config, mates, (i, &view.seed), &poses);
+        let (seed, mate, icp) = mates.seed_for(&config.icp, (i, &view.seed), &poses);
         reports[i].seeded_from_view = mate;
         let (result, icp_seconds) = feed.while_preparing(guess, || {
             let start = Instant::now();
@@ -415,7 +418,7 @@ fn register_sequentially(
     let start = Instant::now();
     let confirmed = symmetries.confirmed();
     for (i, view, found) in left_out {
-        let (seed, mate, icp) = seed_for(config, mates, (i, &view.seed), &poses);
+        let (seed, mate, icp) = mates.seed_for(&config.icp, (i, &view.seed), &poses);
         let now_confirmed = !found.is_empty() && found.iter().all(|u| confirmed.iter().any(|c| c.same_as(u)));
         let now_seeded = reports[i].seeded_from_view.is_none() && mate.is_some();
         if !now_confirmed && !now_seeded {
@@ -499,7 +502,7 @@ mod tests {
     fn registered(scan: &Scan, config: &FuseConfig) -> (Registered, PointCloud) {
         let preparer = Preparer::new(scan, config);
         let mut feed = Feed::new(&preparer, config.view_memory, &config.merge_voxel).expect("feed");
-        let mates = StopMates::of(scan);
+        let mates = StopMates::of(scan, config.registration.stop_seed_gate_m);
         let registered =
             register_views(&mut feed, &mates, &config.registration, &config.merge_voxel).expect("register");
         let parts = feed.into_parts(&registered.poses, &config.merge_voxel).expect("parts");
@@ -546,7 +549,11 @@ mod tests {
     fn a_stop_mate_seeds_a_view_within_the_arm_and_hand_eye_error() {
         let sim = simulate(&SimParams { views: 6, seed: 4, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
         let scan = sim.in_memory_scan();
-        let mates = StopMates::of(&scan);
+        let mates = StopMates::of(&scan, Some(0.03));
+        let view_0_merged = [Some(sim.truth.views[0].world_from_camera)];
+        assert!(
+            mates.seed(1, &view_0_merged).is_some() && StopMates::of(&scan, None).seed(1, &view_0_merged).is_none()
+        );
         let stops = mates.stops();
         // the simulator's 6 views: stops of 2, 1, 2, 1 views
         assert_eq!(stops, vec![Some(0), Some(0), Some(1), Some(2), Some(2), Some(3)]);
