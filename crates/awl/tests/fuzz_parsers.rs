@@ -236,6 +236,7 @@ fn every_parser_survives_seeded_mutations_naming_the_file() {
     let p = at("workpiece.json");
     let wp = awl::workpiece::Workpiece {
         model: "model.ply".into(),
+        model_check: None,
         world_from_tag: Some(nalgebra::Isometry3::translation(0.1, 0.2, 0.3)),
         tag: sim.scan.tag.clone().expect("tag"),
         views_checked: vec![0, 1],

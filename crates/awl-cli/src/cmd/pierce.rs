@@ -122,15 +122,18 @@ pub struct RobotArgs {
     pub tool_length_m: Option<f64>,
 }
 
-fn targets(args: &PierceArgs) -> anyhow::Result<Vec<TargetSpec>> {
-    let mut specs: Vec<TargetSpec> =
+/// The targets asked for, each once (the second and later copies of one are dropped, each with a
+/// warning), and those warnings.
+fn targets(args: &PierceArgs) -> anyhow::Result<(Vec<TargetSpec>, Vec<String>)> {
+    let mut asked: Vec<TargetSpec> =
         args.targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
     if let Some(path) = &args.targets_file {
-        specs.extend(read_targets(path)?);
+        asked.extend(read_targets(path)?);
     }
-    anyhow::ensure!(!specs.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
-    awl::workpiece::check_target_count(specs.len()).map_err(|m| anyhow::anyhow!("--target / --targets-file: {m}"))?;
-    Ok(specs)
+    anyhow::ensure!(!asked.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
+    awl::workpiece::check_target_count(asked.len()).map_err(|m| anyhow::anyhow!("--target / --targets-file: {m}"))?;
+    let (specs, warnings) = awl::workpiece::target_spec::unique_targets(&asked);
+    Ok((specs, warnings))
 }
 
 /// The arm, `T_ee_tool` and the reach settings of `--robot` / `--robot-file`, if given.
@@ -166,7 +169,7 @@ pub fn robot_setup(args: &RobotArgs) -> anyhow::Result<Option<(Arm, Isometry3<f6
 
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
-    let specs = targets(args)?;
+    let (specs, mut warnings) = targets(args)?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
     let mut shot = read_scan(&args.shot)?;
@@ -174,6 +177,15 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
     let model = super::common::read_cloud_warned(&model_path)
         .with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
+    match &workpiece.model_check {
+        Some(check) => check.verify(&args.workpiece, &model_path, &model)?,
+        None => warnings.push(format!(
+            "{} records no model_check (written by an older awl fuse): nothing shows that {} is the model it was \
+             fused with; fuse again to have it checked",
+            args.workpiece.display(),
+            model_path.display()
+        )),
+    }
     // the hand-eye the shot's views start from: a given calibration, else the workpiece's (refined
     // from the scan) when the shot records the scan's, else the shot's recorded one
     let (hand_eye_source, prior) = match &args.hand_eye {
@@ -209,6 +221,7 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
     let robot = robot_setup(&args.robot)?;
     let mut plan = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &params)?;
+    plan.warnings.extend(warnings);
     if let Some((arm, ee_from_tool, reach)) = &robot {
         let reference = shot_joints(&shot)?;
         plan_reach(&mut plan, arm, ee_from_tool, &model, workpiece.floor, reference, reach)?;

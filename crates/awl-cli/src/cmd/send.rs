@@ -1,12 +1,14 @@
 //! `awl send plan.json --ur HOST | --techman HOST [--dry-run]`: send a plan's robot program to the
-//! controller (UR primary / secondary client interface, Techman listen node), or print its bytes.
+//! controller (UR primary / secondary client interface, Techman listen node), or print its bytes;
+//! nothing is sent unless the plan verifies ([`awl::pierce::verify`]) and every line is one of awl's
+//! statements ([`awl::robot::statements`]).
 
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
-use awl::pierce::plan_file::read_plan_to_send;
-use awl::robot::{TECHMAN_PORT, UR_SECONDARY_PORT, techman, ur};
+use awl::pierce::verify::read_plan_to_send;
+use awl::robot::{TECHMAN_PORT, UR_SECONDARY_PORT, statements, techman, ur};
 
 /// Arguments of `awl send`.
 #[derive(clap::Args)]
@@ -58,11 +60,11 @@ pub fn run(args: &SendArgs) -> anyhow::Result<()> {
         (None, Some(host)) => (plan.techman.as_str(), host, args.port.unwrap_or(TECHMAN_PORT)),
         (None, None) => anyhow::bail!("give --ur HOST or --techman HOST"),
     };
-    if args.ur.is_some() {
-        ur::check_program(bytes)?;
-    } else {
-        techman::split_packets(bytes)?;
-    }
+    // the programs were regenerated from the plan's poses and joints and compared (read_plan_to_send);
+    // each line is also one of awl's statements, parsed on its own
+    ur::check_program(&plan.urscript)?;
+    statements::check_urscript_statements(&plan.urscript)?;
+    statements::check_techman_statements(&techman::split_packets(&plan.techman)?)?;
     if args.dry_run {
         let mut out = std::io::stdout().lock();
         out.write_all(bytes.as_bytes())?;

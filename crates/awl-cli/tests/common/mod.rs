@@ -93,6 +93,7 @@ pub fn cad_workpiece(pose: &str, seed: u64, samples: usize, tag_id: Option<u32>)
     }
     let wp = Workpiece {
         model: "model.ply".into(),
+        model_check: Some(awl::workpiece::ModelCheck::of(&model)),
         world_from_tag: Some(object_from_tag),
         tag,
         views_checked: Vec::new(),
@@ -133,4 +134,44 @@ pub fn png_with_header(width: u32, height: u32, depth: u8, color: u8, idat: &[u8
     chunk(b"IDAT", idat);
     chunk(b"IEND", &[]);
     out
+}
+
+/// A flat box shot with its CAD-sampled workpiece ([`cad_workpiece`], seed 3), a 150 mm tool
+/// (`tcp.json`) and two targets on the top face (its centre, and a point 7 cm from it; 3 mm out, so
+/// each snaps back onto the surface): what a real plan for an arm is made from.
+pub struct RobotSetup {
+    /// The workpiece, the shot and their folder.
+    pub cad: CadWorkpiece,
+    /// `--tcp` file.
+    pub tcp: PathBuf,
+    /// `--target` values.
+    pub targets: Vec<String>,
+}
+
+/// [`RobotSetup`] on a fresh folder.
+pub fn robot_setup() -> RobotSetup {
+    let cad = cad_workpiece("flat", 3, 60_000, None);
+    let tcp = cad.dir.path().join("tcp.json");
+    write_tcp(&tcp, 0.15);
+    // the top face's centre, and a point on that face 5 cm off it
+    let t = &cad.truth.targets[0];
+    let p = t.p_object + t.n_object * 0.003;
+    let targets =
+        vec![format!("face-centre@{},{},{}", p.x, p.y, p.z), format!("{},{},{}", p.x + 0.05, p.y - 0.05, p.z)];
+    RobotSetup { cad, tcp, targets }
+}
+
+/// Runs `awl pierce` on `su` for `--robot arm` (or without a robot when `arm` is empty) into
+/// `name` (plan.json) in its folder, with `extra` arguments; returns the run and the plan's path.
+pub fn pierce_for_robot(su: &RobotSetup, name: &str, arm: &str, extra: &[&str]) -> (Output, PathBuf) {
+    let plan = su.cad.dir.path().join(name);
+    let mut args = vec!["pierce", s(&su.cad.workpiece), "--shot", s(&su.cad.shot), "-o", s(&plan), "--force"];
+    for t in &su.targets {
+        args.extend(["--target", t]);
+    }
+    if !arm.is_empty() {
+        args.extend(["--robot", arm, "--tcp", s(&su.tcp)]);
+    }
+    args.extend(extra);
+    (awl(&args), plan)
 }

@@ -300,10 +300,13 @@ pub fn locate(
         let checked: Vec<String> = estimate.views_checked.iter().map(usize::to_string).collect();
         let seen: Vec<String> = estimate.detections.iter().map(|d| format!("view {}: {}", d.view, d.reason)).collect();
         let seen = if seen.is_empty() { "no tag of any id".to_string() } else { seen.join("; ") };
+        // the detections may all have been seen and disagree: the estimate's warning says how
+        let why: Vec<&str> = estimate.warnings.iter().filter(|w| w.contains("disagree")).map(String::as_str).collect();
+        let why = if why.is_empty() { String::new() } else { format!(": {}", why.join("; ")) };
         return Err(shot_error(
             shot,
             format!(
-                "tag {} id {} not found usably in the views checked [{}] ({seen})",
+                "tag {} id {} not found usably in the views checked [{}] ({seen}){why}",
                 tag.family,
                 tag.id,
                 checked.join(", ")

@@ -33,7 +33,7 @@ impl AxisChoice {
 }
 
 /// Parameters of [`plan`].
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct PierceParams {
     /// Target placement on the model.
     pub targets: TargetParams,
@@ -53,6 +53,56 @@ pub struct PierceParams {
     /// How far apart the fuse found parts of the model (workpiece.json
     /// `hand_eye.rejected_disagreement_mm`), metres; 0: none. Added to each target's prediction.
     pub model_disagreement_m: f64,
+    /// The least share of the shot's points (near the model placed by the tag) that must fit the
+    /// model for any target to go ([`ShotRefinement::fitness`](crate::pierce::ShotRefinement)).
+    /// Default [`MIN_SHOT_FITNESS`].
+    pub min_shot_fitness: f64,
+}
+
+/// The default [`PierceParams::min_shot_fitness`]: shots fit their own model at 0.73-0.98 (both
+/// simulators, 2 to 18 views, fused and CAD-sampled models), another part's model at 0.13-0.30 (and
+/// 0.56 once, where the registration then moved the tag 146 mm, beyond its gate): BENCHMARKS.md,
+/// "Shot fitness".
+pub const MIN_SHOT_FITNESS: f64 = 0.5;
+
+impl Default for PierceParams {
+    fn default() -> Self {
+        Self {
+            targets: TargetParams::default(),
+            locate: LocateParams::default(),
+            axis: AxisChoice::default(),
+            stroke: Stroke::default(),
+            hand_eye: None,
+            predict: PredictParams::default(),
+            tolerance: Tolerance::default(),
+            model_disagreement_m: 0.0,
+            min_shot_fitness: MIN_SHOT_FITNESS,
+        }
+    }
+}
+
+/// Why no target may go on this location (`None`: it may): the shot's depth, registered onto the
+/// model, fits too little of it, or its registration failed its gates (the tag alone is then all
+/// that places the model, and the depth disagrees with it).
+fn location_refusal(located: &Located, min_fitness: f64) -> Option<String> {
+    let r = located.refinement.as_ref()?;
+    if !(r.fitness >= min_fitness) {
+        return Some(format!(
+            "the shot fits the model poorly: {:.0} % of its {} points near the model lie on it (at least {:.0} % \
+             needed): the model may not be this workpiece's (check workpiece.json's model), or the workpiece moved \
+             or deformed; take the shot again, or fuse the workpiece again",
+            r.fitness * 1e2,
+            r.points,
+            min_fitness * 1e2
+        ));
+    }
+    (!r.applied).then(|| {
+        format!(
+            "the shot's depth does not confirm the tag's location ({}): take the shot again with the workpiece's \
+             surface around the targets in view",
+            r.note
+        )
+    })
 }
 
 /// One target of the plan.
@@ -140,8 +190,18 @@ pub fn plan(
     }
     let placed: Vec<SurfaceTarget> =
         specs.iter().map(|s| surface.place(s, &params.targets, Some(world_from_tag))).collect::<Result<_>>()?;
+    if !(0.0..=1.0).contains(&params.min_shot_fitness) {
+        return Err(Error::invalid(
+            "min_shot_fitness",
+            format!("{} is not a share between 0 and 1", params.min_shot_fitness),
+        ));
+    }
     let located = locate(shot, tag, world_from_tag, surface, &params.locate, params.hand_eye.as_ref())?;
     let mut warnings = located.warnings.clone();
+    let no_location = location_refusal(&located, params.min_shot_fitness);
+    if let Some(why) = &no_location {
+        warnings.push(format!("every target is no-go: {why}"));
+    }
     if params.model_disagreement_m > 0.0 {
         warnings.push(format!(
             "the fuse found parts of the model {:.1} mm apart (workpiece.json hand_eye.rejected_disagreement_mm: \
@@ -179,7 +239,9 @@ pub fn plan(
                 model_disagreement_m: params.model_disagreement_m,
             };
             let prediction = predict(&base_from_model, &located.base_from_model_covariance, &geometry, &params.predict);
-            let refusal = params.tolerance.refusal(&prediction);
+            let refusal: Vec<String> =
+                no_location.iter().cloned().chain(params.tolerance.refusal(&prediction)).collect();
+            let refusal = (!refusal.is_empty()).then(|| refusal.join("; "));
             Ok(PlannedTarget { surface, p_base, normal_base, axis_base, poses, prediction, refusal, reach: None })
         })
         .collect::<Result<Vec<_>>>()?;

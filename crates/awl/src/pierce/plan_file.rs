@@ -29,10 +29,12 @@
 //! ```
 //! `POSE` = `{ "T": [[4x4]], "xyz": [x,y,z], "quaternion_xyzw": [x,y,z,w], "ur_axis_angle": [x,y,z,rx,ry,rz] }`,
 //! base frame, metres. The targets' `approach` / `pierce` / `retract` are tool poses (`T_base_tool`,
-//! `pose_frame`).
+//! `pose_frame`). `awl send` checks every pose, joint and program line against the rest of the plan
+//! before it sends ([`crate::pierce::verify`]).
 //!
 //! With `--robot` ([`crate::pierce::reach`]):
-//! `ROBOT` = `{ "arm": "ur5e", "T_ee_tool": [[4x4]], "q_reference_rad": [6] | null,
+//! `ROBOT` = `{ "arm": "ur5e", "T_ee_tool": [[4x4]], "arm_model": ARM (the awl-arm/1 file of the arm:
+//!   what `awl send` checks the joints by), "q_reference_rad": [6] | null,
 //!   "preferred_configuration": CONF | null, "model_points": 41000, "floor_checked": true }`;
 //! `REACH` = `{ "reachable": true, "reason": null | "...", "spin_deg": 10.0, "configuration": CONF | null,
 //!   "q_rad": { "approach": [6], "pierce": [6], "retract": [6] } | null,
@@ -49,6 +51,7 @@ use serde_json::{Value, json};
 
 use crate::error::Result;
 use crate::io::write_atomic;
+use crate::kinematics::arm_file::arm_json;
 use crate::pierce::reach::{ReachSetup, TargetReach};
 use crate::pierce::{PiercePlan, check_for_robot, quaternion_xyzw, ur_pose};
 use crate::transform::rows_from_isometry;
@@ -207,6 +210,7 @@ pub fn robot_json(r: &ReachSetup) -> Value {
         "T_ee_tool": rows_from_isometry(&r.ee_from_tool),
         "q_reference_rad": r.reference_q,
         "preferred_configuration": r.prefer.as_ref().map(configuration),
+        "arm_model": serde_json::from_str::<Value>(&arm_json(&r.model)).unwrap_or(Value::Null),
         "model_points": r.model_points,
         "floor_checked": r.floor,
     })
@@ -227,53 +231,6 @@ pub fn plan_value_text(plan: &PiercePlan, value: &Value) -> Result<String> {
     let mut text = serde_json::to_string_pretty(value).unwrap_or_default();
     text.push('\n');
     Ok(text)
-}
-
-/// What `awl send` needs from a plan.json: its programs and the targets that must not be run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PlanToSend {
-    /// The URScript program (`programs.urscript`).
-    pub urscript: String,
-    /// The Techman listen-node packets (`programs.techman`).
-    pub techman: String,
-    /// Per refused target: its index, its `target` string and why (`reach.reachable` false, or the
-    /// gate's `go` false with its `why`).
-    pub refused: Vec<(usize, String, String)>,
-}
-
-/// Reads what `awl send` needs from plan.json.
-///
-/// # Errors
-/// [`crate::Error::Io`]; [`crate::Error::Format`] for invalid JSON; [`crate::Error::Field`] naming
-/// `format`, `programs.urscript` / `programs.techman` or `targets` when missing or of the wrong kind.
-pub fn read_plan_to_send(path: &Path) -> Result<PlanToSend> {
-    use crate::error::Error;
-    let value: Value = crate::io::scan::parse_json(path, &crate::io::read_bytes(path)?)?;
-    if value.get("format").and_then(Value::as_str) != Some(PLAN_FORMAT) {
-        return Err(Error::field(path, "format", format!("must be \"{PLAN_FORMAT}\" (a plan.json of awl pierce)")));
-    }
-    let program = |key: &str| {
-        value.get("programs").and_then(|p| p.get(key)).and_then(Value::as_str).map(str::to_string).ok_or_else(|| {
-            Error::field(path, format!("programs.{key}"), "missing: write the plan again with this awl pierce")
-        })
-    };
-    let targets =
-        value.get("targets").and_then(Value::as_array).ok_or_else(|| Error::field(path, "targets", "missing"))?;
-    let mut refused = Vec::new();
-    for (i, t) in targets.iter().enumerate() {
-        let name = t.get("target").and_then(Value::as_str).unwrap_or("?").to_string();
-        if let Some(r) = t.get("reach").filter(|r| !r.is_null())
-            && r.get("reachable").and_then(Value::as_bool) != Some(true)
-        {
-            let why = r.get("reason").and_then(Value::as_str).unwrap_or("not reachable");
-            refused.push((i, name.clone(), format!("not reachable: {why}")));
-        }
-        if t.get("go").and_then(Value::as_bool) == Some(false) {
-            let why = t.get("why").and_then(Value::as_str).unwrap_or("no-go");
-            refused.push((i, name, format!("no-go: {why}")));
-        }
-    }
-    Ok(PlanToSend { urscript: program("urscript")?, techman: program("techman")?, refused })
 }
 
 /// The text of plan.json, once the plan passes [`check_for_robot`].

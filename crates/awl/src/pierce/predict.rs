@@ -190,9 +190,21 @@ impl Tolerance {
         Ok(())
     }
 
-    /// `None` when `prediction` is within the tolerance, else why not.
+    /// `None` when `prediction` is within the tolerance, else why not. A bound that is not finite
+    /// is always refused, with or without a tolerance: nothing bounds where the tool would go.
     pub fn refusal(&self, prediction: &Prediction) -> Option<String> {
         let mut why = Vec::new();
+        for (what, v) in [("position", prediction.position_bound_m), ("axis", prediction.axis_bound_rad)] {
+            if !v.is_finite() {
+                why.push(format!(
+                    "the predicted {what} error has no finite bound (the located pose is unconstrained): take a \
+                     shot whose views see the tag and the workpiece's surface from two directions"
+                ));
+            }
+        }
+        if !why.is_empty() {
+            return Some(why.join("; "));
+        }
         if let Some(t) = self.position_m.filter(|t| !(prediction.position_bound_m <= *t)) {
             why.push(format!(
                 "the predicted position error {:.2} mm exceeds the tolerance {:.2} mm",
@@ -282,5 +294,11 @@ mod tests {
         assert!(Tolerance { position_m: None, axis_rad: Some(f64::NAN) }.validate().is_err());
         let nan = Prediction { position_bound_m: f64::NAN, ..p };
         assert!(Tolerance { position_m: Some(0.01), axis_rad: None }.refusal(&nan).is_some());
+        // without any tolerance, a bound that is not finite is still no-go, naming the cause
+        for bad in [Prediction { position_bound_m: f64::INFINITY, ..p }, Prediction { axis_bound_rad: f64::NAN, ..p }] {
+            let why = Tolerance::default().refusal(&bad).expect("an unbounded prediction is no-go");
+            assert!(why.contains("no finite bound") && why.contains("two directions"), "{why}");
+        }
+        assert!(Tolerance::default().refusal(&p).is_none());
     }
 }

@@ -54,6 +54,8 @@ impl Default for ReachParams {
 pub struct ReachSetup {
     /// The arm's name.
     pub arm: String,
+    /// The arm (its DH table and limits: plan.json's `robot.arm_model`).
+    pub model: Arm,
     /// `T_ee_tool`: the tool centre point on the flange (the controller's TCP).
     pub ee_from_tool: Isometry3<f64>,
     /// The joint state the configurations were chosen nearest (the shot's last view's `q`), radians.
@@ -257,6 +259,7 @@ pub fn plan_reach(
     }
     plan.reach = Some(ReachSetup {
         arm: arm.name.clone(),
+        model: arm.clone(),
         ee_from_tool: *ee_from_tool,
         reference_q,
         prefer,

@@ -17,12 +17,13 @@
 
 use std::fmt::Write as _;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 
 use crate::error::{Error, Result};
+use crate::kinematics::Joints;
 use crate::pierce::plan::PiercePlan;
 use crate::pierce::safety::check_for_robot;
-use crate::pierce::tool::{ToolPoses, tm_pose, ur_pose};
+use crate::pierce::tool::{MAX_REACH_M, ToolPoses, tm_pose, ur_pose};
 
 /// Speeds of the generated program.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,6 +86,150 @@ impl ScriptSpeeds {
     }
 }
 
+/// The most characters of one word from a file, a path or an argument that a program carries (the
+/// rest is cut and marked `...`).
+pub const MAX_PROGRAM_TEXT_CHARS: usize = 160;
+
+/// `text` reduced to what a robot program may carry from outside awl: printable ASCII (space to
+/// `~`) only, every other character (line breaks of any kind, NUL, control and bidirectional
+/// characters, any non-ASCII) replaced by `?`, and at most [`MAX_PROGRAM_TEXT_CHARS`] characters.
+/// The one place every word from a file, a path or an argument passes before it reaches a URScript
+/// or Techman program ([`ProgramPlan`]): no such word can end a comment or start a statement.
+pub fn program_text(text: &str) -> String {
+    let mut out: String =
+        text.chars().take(MAX_PROGRAM_TEXT_CHARS).map(|c| if (' '..='~').contains(&c) { c } else { '?' }).collect();
+    if text.chars().nth(MAX_PROGRAM_TEXT_CHARS).is_some() {
+        out.push_str("...");
+    }
+    out
+}
+
+/// One target of a [`ProgramPlan`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProgramTarget {
+    /// The target as asked (`face-centre@x,y,z`), printable ASCII ([`program_text`]).
+    pub spec: String,
+    /// The surface point, base frame, metres (named in a comment).
+    pub p_base: Point3<f64>,
+    /// Why it is left out of the programs, printable ASCII (`None`: it goes).
+    pub left_out: Option<String>,
+    /// With a checked reach: the joints at the approach pose, radians, the joint move's goal.
+    pub approach_q: Option<Joints>,
+    /// The tool poses moved through (`T_base_tool`; with a checked reach, turned by its spin).
+    pub poses: ToolPoses,
+}
+
+/// What a plan's robot programs are made of, and nothing else: the tool poses, the approach joints,
+/// the TCP, and a few words for comments, each reduced to printable ASCII ([`program_text`]). The
+/// programs of `awl pierce` ([`ProgramPlan::of`]) and the ones `awl send` regenerates from
+/// plan.json to check what it sends ([`crate::pierce::verify`]) both come from it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProgramPlan {
+    /// Where the plan came from (the workpiece file), named in the URScript header.
+    pub source: String,
+    /// With a checked reach: the arm's name and `T_ee_tool`, the TCP the programs set.
+    pub tcp: Option<(String, Isometry3<f64>)>,
+    /// The targets, in the plan's order.
+    pub targets: Vec<ProgramTarget>,
+}
+
+impl ProgramPlan {
+    /// The program content of `plan`, whose workpiece file is `source`.
+    pub fn of(plan: &PiercePlan, source: &str) -> Self {
+        let tcp = plan.reach.as_ref().map(|r| (program_text(&r.arm), r.ee_from_tool));
+        let targets = plan
+            .targets
+            .iter()
+            .map(|t| {
+                let reach = t.reach.as_ref().and_then(|r| r.joints.zip(r.tool_poses)).filter(|_| tcp.is_some());
+                ProgramTarget {
+                    spec: program_text(&t.surface.spec.to_string()),
+                    p_base: t.p_base,
+                    left_out: t.no_go_reason().map(|why| program_text(&why)),
+                    approach_q: reach.map(|(q, _)| q.approach),
+                    poses: reach.map_or(t.poses, |(_, poses)| poses),
+                }
+            })
+            .collect();
+        Self { source: program_text(source), tcp, targets }
+    }
+
+    /// Keeps every word printable ASCII ([`program_text`]), whoever built the plan.
+    fn sanitized(&self) -> Self {
+        let mut p = self.clone();
+        p.source = program_text(&p.source);
+        if let Some((arm, _)) = &mut p.tcp {
+            *arm = program_text(arm);
+        }
+        for t in &mut p.targets {
+            t.spec = program_text(&t.spec);
+            t.left_out = t.left_out.as_deref().map(program_text);
+        }
+        p
+    }
+
+    /// Checks every number a program would carry: poses finite, unit rotations, within
+    /// [`MAX_REACH_M`] of the base; joints finite and within +-2 pi; `T_ee_tool` finite and within
+    /// [`MAX_TCP_M`] of the flange; `p_base` finite.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming the target and the value.
+    pub fn validate(&self) -> Result<()> {
+        if let Some((_, tcp)) = &self.tcp {
+            check_pose("T_ee_tool", tcp, MAX_TCP_M)?;
+        }
+        for (i, t) in self.targets.iter().enumerate() {
+            let name = |what: &str| format!("targets[{i}] (`{}`).{what}", t.spec);
+            if !t.p_base.coords.iter().all(|v| v.is_finite()) {
+                return Err(Error::invalid(name("p_base"), "not finite"));
+            }
+            for (what, pose) in
+                [("approach", &t.poses.approach), ("pierce", &t.poses.pierce), ("retract", &t.poses.retract)]
+            {
+                check_pose(&name(what), pose, MAX_REACH_M)?;
+            }
+            if let Some(q) = &t.approach_q
+                && let Some(k) = q.iter().position(|v| !(v.is_finite() && v.abs() <= 2.0 * std::f64::consts::PI))
+            {
+                return Err(Error::invalid(
+                    name("q_rad.approach"),
+                    format!("joint {} is {} rad: not a finite angle within +-2 pi", k + 1, q[k]),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How far the TCP may be from the flange, metres: a piercing tool a metre long at most.
+pub const MAX_TCP_M: f64 = 1.0;
+
+/// Refuses a pose that is not finite, whose rotation is not a unit quaternion, or whose origin is
+/// farther than `max_m` metres.
+fn check_pose(name: &str, pose: &Isometry3<f64>, max_m: f64) -> Result<()> {
+    let v = pose.translation.vector;
+    if !(v.iter().all(|x| x.is_finite()) && pose.rotation.coords.iter().all(|x| x.is_finite())) {
+        return Err(Error::invalid(name, "the pose is not finite"));
+    }
+    if (pose.rotation.coords.norm() - 1.0).abs() > 1e-6 {
+        return Err(Error::invalid(name, "the rotation is not a unit quaternion"));
+    }
+    if v.norm() > max_m {
+        return Err(Error::invalid(
+            name,
+            format!(
+                "the point ({:.3}, {:.3}, {:.3}) m is {:.3} m away, beyond {max_m} m: bring the base closer or check \
+                 the shot's poses",
+                v.x,
+                v.y,
+                v.z,
+                v.norm()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
 ///
 /// # Errors
@@ -92,33 +237,43 @@ impl ScriptSpeeds {
 /// from a non-finite or out-of-range value.
 pub fn urscript(plan: &PiercePlan, speeds: &ScriptSpeeds, source: &str) -> Result<String> {
     check_for_robot(plan)?;
+    urscript_of(&ProgramPlan::of(plan, source), speeds)
+}
+
+/// The URScript program of `program` (module docs): every line one of awl's templates, the words
+/// in its comments printable ASCII.
+///
+/// # Errors
+/// [`Error::Invalid`] from [`ProgramPlan::validate`] or [`ScriptSpeeds::validate`].
+pub fn urscript_of(program: &ProgramPlan, speeds: &ScriptSpeeds) -> Result<String> {
+    let program = program.sanitized();
+    program.validate()?;
     speeds.validate()?;
     let mut s = String::new();
     let _ = writeln!(s, "def awl_pierce():");
-    let go = plan.targets.iter().filter(|t| t.go()).count();
-    let _ = writeln!(s, "  # awl pierce: {go} of {} target(s) from {source}", plan.targets.len());
+    let go = program.targets.iter().filter(|t| t.left_out.is_none()).count();
+    let _ = writeln!(s, "  # awl pierce: {go} of {} target(s) from {}", program.targets.len(), program.source);
     let _ =
         writeln!(s, "  # TCP = the tip of the piercing tool; poses in the robot base frame (metres, rotation vectors)");
-    if let Some(r) = &plan.reach {
-        let _ = writeln!(s, "  # reach checked for {}: T_ee_tool as the TCP", r.arm);
-        let _ = writeln!(s, "  set_tcp({})", ur(&r.ee_from_tool));
+    if let Some((arm, ee_from_tool)) = &program.tcp {
+        let _ = writeln!(s, "  # reach checked for {arm}: T_ee_tool as the TCP");
+        let _ = writeln!(s, "  set_tcp({})", ur(ee_from_tool));
     }
-    for (i, t) in plan.targets.iter().enumerate() {
+    for (i, t) in program.targets.iter().enumerate() {
         let p = t.p_base;
-        let _ = writeln!(s, "  # target {i}: {} -> p_base ({:.4}, {:.4}, {:.4}) m", t.surface.spec, p.x, p.y, p.z);
-        if let Some(why) = t.no_go_reason() {
-            let _ = writeln!(s, "  # left out: {}", why.replace('\n', " "));
+        let _ = writeln!(s, "  # target {i}: {} -> p_base ({:.4}, {:.4}, {:.4}) m", t.spec, p.x, p.y, p.z);
+        if let Some(why) = &t.left_out {
+            let _ = writeln!(s, "  # left out: {why}");
             continue;
         }
-        match t.reach.as_ref().and_then(|r| r.joints.zip(r.tool_poses)) {
-            Some((q, poses)) => {
-                let j = q.approach;
+        match &t.approach_q {
+            Some(j) => {
                 let _ = writeln!(
                     s,
                     "  movej([{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}], a={}, v={})",
                     j[0], j[1], j[2], j[3], j[4], j[5], speeds.joint_rad_s2, speeds.joint_rad_s
                 );
-                for (pose, v) in &strokes(&poses, speeds)[1..] {
+                for (pose, v) in &strokes(&t.poses, speeds)[1..] {
                     let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
                 }
             }
@@ -155,7 +310,7 @@ fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
     )
 }
 
-fn tm_ptp(q: &crate::kinematics::Joints, speeds: &ScriptSpeeds) -> String {
+fn tm_ptp(q: &Joints, speeds: &ScriptSpeeds) -> String {
     let d = q.map(f64::to_degrees);
     let accel_ms = (speeds.joint_rad_s / speeds.joint_rad_s2 * 1e3).round().max(1.0);
     // joint angles in degrees, speed percent, time to top speed in ms, no blending, precise
@@ -175,22 +330,34 @@ fn tm_ptp(q: &crate::kinematics::Joints, speeds: &ScriptSpeeds) -> String {
 /// As [`urscript`].
 pub fn techman_packets(plan: &PiercePlan, speeds: &ScriptSpeeds) -> Result<String> {
     check_for_robot(plan)?;
+    techman_packets_of(&ProgramPlan::of(plan, ""), speeds)
+}
+
+/// The Techman listen-node packets of `program` ([`techman_packets`]): no word from outside awl
+/// reaches them, only numbers and awl's templates.
+///
+/// # Errors
+/// As [`urscript_of`].
+pub fn techman_packets_of(program: &ProgramPlan, speeds: &ScriptSpeeds) -> Result<String> {
+    program.validate()?;
     speeds.validate()?;
     let mut out = String::new();
-    for (i, t) in plan.targets.iter().enumerate() {
-        if !t.go() {
+    for (i, t) in program.targets.iter().enumerate() {
+        if t.left_out.is_some() {
             continue;
         }
         let mut lines = vec!["ChangeBase(\"RobotBase\")".to_string()];
-        match (plan.reach.as_ref(), t.reach.as_ref().and_then(|r| r.joints.zip(r.tool_poses))) {
-            (Some(r), Some((q, poses))) => {
-                let v = tm_pose(&r.ee_from_tool);
+        match (&program.tcp, &t.approach_q) {
+            (Some((_, ee_from_tool)), Some(q)) => {
+                let v = tm_pose(ee_from_tool);
                 lines.push(format!(
                     "ChangeTCP({:.3},{:.3},{:.3},{:.4},{:.4},{:.4})",
                     v[0], v[1], v[2], v[3], v[4], v[5]
                 ));
-                lines.push(tm_ptp(&q.approach, speeds));
-                lines.extend(strokes(&poses, speeds)[1..].iter().map(|(pose, v)| tm_line(pose, *v, speeds.accel_m_s2)));
+                lines.push(tm_ptp(q, speeds));
+                lines.extend(
+                    strokes(&t.poses, speeds)[1..].iter().map(|(pose, v)| tm_line(pose, *v, speeds.accel_m_s2)),
+                );
             }
             _ => lines.extend(strokes(&t.poses, speeds).map(|(pose, v)| tm_line(pose, v, speeds.accel_m_s2))),
         }

@@ -3,8 +3,10 @@
 //! node ([`techman`], port 5890: `$TMSCT` packets with their checksums, each acknowledged). Each
 //! connection, read and write has a timeout; an unreachable host, a silent controller, a negative
 //! acknowledgement or a malformed reply is an [`crate::Error::Robot`] naming the address and what
-//! was being sent. The only network code of the library.
+//! was being sent. The only network code of the library. [`statements`]: the statements awl's
+//! programs are made of, checked before anything is sent.
 
+pub mod statements;
 pub mod techman;
 pub mod ur;
 

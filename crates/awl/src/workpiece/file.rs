@@ -40,6 +40,9 @@ impl Default for WorkpieceParams {
 pub struct Workpiece {
     /// The model's file name, relative to `workpiece.json`'s folder (e.g. `model.ply`).
     pub model: String,
+    /// The model's fingerprint (`None`: not recorded, as by awl before it had one: the model is
+    /// then not checked, and `awl pierce` warns).
+    pub model_check: Option<crate::workpiece::ModelCheck>,
     /// `T_world_tag`: the tag in the model's frame; None when no view saw the tag.
     pub world_from_tag: Option<Isometry3<f64>>,
     /// The tag (scan.json's `tag`).
@@ -122,6 +125,7 @@ pub fn workpiece_from_search(
     }
     Ok(Some(Workpiece {
         model: model_file.into(),
+        model_check: Some(crate::workpiece::ModelCheck::of(model)),
         world_from_tag,
         tag,
         views_checked: estimate.views_checked,

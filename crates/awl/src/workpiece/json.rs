@@ -3,6 +3,8 @@
 //!
 //! ```json
 //! { "format": "awl-workpiece/1", "model": "model.ply",
+//!   "model_check": { "points": 41000, "bounds_min_m": [x,y,z], "bounds_max_m": [x,y,z], "sha256": "..." }
+//!                  (absent when written by an older awl; see `workpiece::model_check`),
 //!   "T_world_tag": [[...4x4 rows...]] | null,
 //!   "tag": { "family": "tag36h11", "id": 0, "size": 0.1 },
 //!   "views_checked": [0, 1, 3],
@@ -27,6 +29,7 @@ use crate::pipeline::HandEyeReport;
 use crate::scan::TagSpec;
 use crate::segment::FloorPlane;
 use crate::transform::{Rows, rows_from_isometry};
+use crate::workpiece::ModelCheck;
 use crate::workpiece::file::{WORKPIECE_FORMAT, Workpiece};
 use crate::workpiece::refine::Refinement;
 use crate::workpiece::tag_pose::ViewTagDetection;
@@ -70,6 +73,8 @@ struct RawFloor {
 struct RawWorkpiece {
     format: String,
     model: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    model_check: Option<ModelCheck>,
     #[serde(rename = "T_world_tag")]
     world_tag: Option<Rows>,
     tag: TagSpec,
@@ -99,6 +104,7 @@ pub fn write_workpiece(path: &Path, workpiece: &Workpiece) -> Result<()> {
     let raw = RawWorkpiece {
         format: WORKPIECE_FORMAT.into(),
         model: workpiece.model.clone(),
+        model_check: workpiece.model_check.clone(),
         world_tag: workpiece.world_from_tag.as_ref().map(rows_from_isometry),
         tag: workpiece.tag.clone(),
         views_checked: workpiece.views_checked.clone(),
@@ -191,8 +197,19 @@ pub fn read_workpiece(path: &Path) -> Result<Workpiece> {
             })
         })
         .transpose()?;
+    if let Some(c) = &raw.model_check {
+        let finite = c.bounds_min_m.iter().chain(&c.bounds_max_m).all(|v| v.is_finite());
+        if !finite || c.sha256.len() != 64 || !c.sha256.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(Error::field(
+                path,
+                "model_check",
+                "needs finite bounds and a 64-digit hex sha256 (as awl fuse writes it)",
+            ));
+        }
+    }
     Ok(Workpiece {
         model: raw.model,
+        model_check: raw.model_check,
         world_from_tag,
         tag: raw.tag,
         views_checked: raw.views_checked,

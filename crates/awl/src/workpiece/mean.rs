@@ -37,6 +37,9 @@ pub struct PoseMean {
     pub rejected: Vec<Option<String>>,
     /// Number of poses kept.
     pub used: usize,
+    /// Whether any pose lies within the thresholds of the reference (false: the poses disagree,
+    /// every one was rejected, and `mean` is the medoid alone, which nothing confirms).
+    pub agreed: bool,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -80,7 +83,8 @@ pub fn robust_mean(poses: &[Isometry3<f64>], params: &MeanParams) -> Result<Pose
         .collect();
     let kept: Vec<&Isometry3<f64>> = poses.iter().zip(&rejected).filter(|(_, r)| r.is_none()).map(|(p, _)| p).collect();
     // the medoid is always within the thresholds of itself, but its translation may not be
-    let kept = if kept.is_empty() { vec![&poses[medoid]] } else { kept };
+    let agreed = !kept.is_empty();
+    let kept = if agreed { kept } else { vec![&poses[medoid]] };
     let n = kept.len() as f64;
     let t = kept.iter().map(|p| p.translation.vector).sum::<Vector3<f64>>() / n;
     let q_ref = reference.into_inner().coords;
@@ -93,7 +97,7 @@ pub fn robust_mean(poses: &[Isometry3<f64>], params: &MeanParams) -> Result<Pose
         .sum();
     let rotation = UnitQuaternion::from_quaternion(Quaternion::from(sum));
     let used = kept.len();
-    Ok(PoseMean { mean: Isometry3::from_parts(Translation3::from(t), rotation), rejected, used })
+    Ok(PoseMean { mean: Isometry3::from_parts(Translation3::from(t), rotation), rejected, used, agreed })
 }
 
 #[cfg(test)]
@@ -117,6 +121,17 @@ mod tests {
         let (dt, dr) = crate::transform::pose_difference(&m.mean, &truth);
         // symmetric offsets cancel: the mean is the truth up to second-order terms
         assert!(dt < 1e-6 && dr < 1e-5, "dt {dt} dr {dr}");
+    }
+
+    #[test]
+    fn two_poses_far_apart_do_not_agree() {
+        let a = Isometry3::translation(0.3, 0.0, 0.1);
+        let b = Isometry3::translation(0.3, 0.04, 0.1);
+        let m = robust_mean(&[a, b], &MeanParams::default()).expect("mean");
+        // each is 20 mm from their median: both rejected, and the mean says it rests on nothing
+        assert!(!m.agreed && m.rejected.iter().all(Option::is_some), "{m:?}");
+        let c = Isometry3::translation(0.3, 0.004, 0.1);
+        assert!(robust_mean(&[a, c], &MeanParams::default()).expect("mean").agreed);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //!   (detect, pose with the depth-resolved ambiguity, registered view pose, robust SE(3) mean:
 //!   [`mean`]), then [`refine`]d on the model's points in the tag square.
 //! - [`file`]: the `workpiece.json` record `awl fuse` writes (`awl-workpiece/1`; I/O in
-//!   [`crate::workpiece::json`]).
+//!   [`crate::workpiece::json`]); [`model_check`]: its model's fingerprint, checked by `awl pierce`.
 //! - [`targets`] / [`face`]: a point snapped onto the surface, or the centre of the planar face nearest
 //!   a point, with the outward normal and the piercing axis; [`target_spec`] parses target strings.
 //!
@@ -15,6 +15,7 @@ pub mod face;
 pub mod file;
 pub mod json;
 pub mod mean;
+pub mod model_check;
 pub mod refine;
 pub mod tag_pose;
 pub mod target_spec;
@@ -26,6 +27,7 @@ pub use file::{
     workpiece_from_search,
 };
 pub use mean::{MeanParams, PoseMean, robust_mean};
+pub use model_check::ModelCheck;
 pub use refine::{RefineParams, Refinement, refine_on_model};
 pub use tag_pose::{
     Sighting, TagEstimate, TagEstimateParams, TagSearch, TagView, ViewTagDetection, estimate_from_views,

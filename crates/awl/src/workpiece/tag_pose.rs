@@ -290,11 +290,37 @@ fn finish(
         for (k, &i) in candidates.iter().enumerate() {
             if let Some(reason) = &mean.rejected[k] {
                 detections[i].used = false;
-                detections[i].reason = reason.clone();
+                detections[i].reason = if mean.agreed {
+                    reason.clone()
+                } else {
+                    format!("disagrees with the other detection(s) ({reason}); none is used")
+                };
             }
         }
-        world_from_tag = Some(mean.mean);
-        if mean.used < 2 {
+        if !mean.agreed {
+            let list: Vec<String> = candidates
+                .iter()
+                .map(|&i| {
+                    let d = &detections[i];
+                    let t = d.world_from_tag.map_or(nalgebra::Vector3::zeros(), |t| t.translation.vector);
+                    format!("view {} at ({:.4}, {:.4}, {:.4}) m", d.view, t.x, t.y, t.z)
+                })
+                .collect();
+            warnings.push(format!(
+                "the {} detections of tag {} id {} disagree beyond {:.0} mm / {:.1} deg ({}): none is used, as awl cannot \
+                 tell which is right; check the camera's intrinsics, the views' poses and T_ee_camera, or add a view \
+                 of the tag",
+                candidates.len(),
+                tag.family,
+                tag.id,
+                params.mean.max_translation_m * 1e3,
+                params.mean.max_rotation_rad.to_degrees(),
+                list.join(", ")
+            ));
+        } else {
+            world_from_tag = Some(mean.mean);
+        }
+        if mean.agreed && mean.used < 2 {
             warnings.push(format!("T_world_tag rests on a single view (view {})", detections[candidates[0]].view));
         }
     }

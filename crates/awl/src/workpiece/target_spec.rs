@@ -131,9 +131,34 @@ pub fn check_target_count(count: usize) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// `specs` with each target once, in the order first asked, and a warning for each one dropped
+/// (a target given twice would be pierced twice).
+pub fn unique_targets(specs: &[TargetSpec]) -> (Vec<TargetSpec>, Vec<String>) {
+    let mut unique: Vec<TargetSpec> = Vec::with_capacity(specs.len());
+    let mut warnings = Vec::new();
+    for (i, s) in specs.iter().enumerate() {
+        if unique.contains(s) {
+            warnings.push(format!("target {i} ({s}) was given before: planned once, pierced once"));
+        } else {
+            unique.push(*s);
+        }
+    }
+    (unique, warnings)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_target_given_three_times_is_planned_once_with_warnings() {
+        let a = TargetSpec::parse("0.1,0.2,0.3").expect("a");
+        let b = TargetSpec::parse("face-centre@0.1,0.2,0.3").expect("b");
+        let (unique, warnings) = unique_targets(&[a, b, a, a]);
+        assert_eq!(unique, vec![a, b]);
+        assert_eq!(warnings.len(), 2);
+        assert!(warnings[0].starts_with("target 2 (") && warnings[0].contains("planned once"), "{warnings:?}");
+    }
 
     #[test]
     fn parses_points_faces_and_negative_numbers() {
