@@ -289,11 +289,45 @@ fn pierce_shot(f: &Fused, shot_folder: &str, face_centres: bool) -> Vec<(String,
                 r.correction_rad.to_degrees()
             );
             assert!(r.applied, "{}", r.note);
+            // nothing that worked is refused (issue 82): a shot that fits its model goes
+            assert!(p.go() && r.fitness >= awl::pierce::MIN_SHOT_FITNESS, "{:?} {}", p.no_go_reason(), r.fitness);
             e.1[2 * k] = d;
             e.1[2 * k + 1] = a;
         }
     }
     errors
+}
+
+/// workpiece.json binds its model (issue 82): the fused box's `model_check` accepts the model as
+/// written and read back, and refuses the shell's; a box shot planned on the shell's model (as an
+/// older workpiece.json without `model_check` would allow) makes every target no-go.
+#[test]
+fn a_workpiece_is_bound_to_its_model() {
+    let (b, sh) = (reference_box(), reference_shell());
+    let wp = workpiece_from_fuse(&b.scan, &b.out, "model.ply", &WorkpieceParams::default())
+        .expect("workpiece")
+        .expect("tag");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (path, model_path) = (dir.path().join("workpiece.json"), dir.path().join("model.ply"));
+    write_workpiece(&path, &wp).expect("write");
+    awl::io::mesh::write_cloud(&model_path, &b.out.model).expect("model");
+    let back = read_workpiece(&path).expect("read");
+    let check = back.model_check.as_ref().expect("model_check");
+    assert_eq!(check.points, b.out.model.len());
+    check.verify(&path, &model_path, &awl::io::mesh::read_cloud(&model_path).expect("read")).expect("its own model");
+    let e = check.verify(&path, &model_path, &sh.out.model).expect_err("the shell's model").to_string();
+    assert!(e.contains("model_check") && e.contains("points"), "{e}");
+    // the shell's model behind the box's tag: the shot does not fit it
+    let shot_dir = shared_data().join("sim_reference").join("box_seed1_shot_flat");
+    let shot = read_scan(&shot_dir).expect("shot");
+    let p = sh.out.model.points[sh.out.model.len() / 2];
+    let specs = [TargetSpec::Point(nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))];
+    let params = PierceParams { locate: LocateParams::with_refinement(), ..PierceParams::default() };
+    let surface = SurfaceModel::new(&sh.out.model).expect("index");
+    let planned = plan(&surface, &wp.tag, &wp.world_from_tag.expect("tag"), &shot, &specs, &params).expect("plan");
+    let r = planned.located.refinement.as_ref().expect("refinement");
+    println!("box shot on the shell's model: fitness {:.2}, {:?}", r.fitness, planned.targets[0].no_go_reason());
+    assert!(!planned.targets[0].go(), "a shot that does not fit its model must not go");
 }
 
 #[test]

@@ -142,6 +142,8 @@ pub fn png_with_header(width: u32, height: u32, depth: u8, color: u8, idat: &[u8
 pub struct RobotSetup {
     /// The workpiece, the shot and their folder.
     pub cad: CadWorkpiece,
+    /// The workpiece.json `awl pierce` reads (`cad.workpiece` unless a test moves it).
+    pub workpiece: PathBuf,
     /// `--tcp` file.
     pub tcp: PathBuf,
     /// `--target` values.
@@ -158,14 +160,15 @@ pub fn robot_setup() -> RobotSetup {
     let p = t.p_object + t.n_object * 0.003;
     let targets =
         vec![format!("face-centre@{},{},{}", p.x, p.y, p.z), format!("{},{},{}", p.x + 0.05, p.y - 0.05, p.z)];
-    RobotSetup { cad, tcp, targets }
+    let workpiece = cad.workpiece.clone();
+    RobotSetup { cad, workpiece, tcp, targets }
 }
 
 /// Runs `awl pierce` on `su` for `--robot arm` (or without a robot when `arm` is empty) into
 /// `name` (plan.json) in its folder, with `extra` arguments; returns the run and the plan's path.
 pub fn pierce_for_robot(su: &RobotSetup, name: &str, arm: &str, extra: &[&str]) -> (Output, PathBuf) {
     let plan = su.cad.dir.path().join(name);
-    let mut args = vec!["pierce", s(&su.cad.workpiece), "--shot", s(&su.cad.shot), "-o", s(&plan), "--force"];
+    let mut args = vec!["pierce", s(&su.workpiece), "--shot", s(&su.cad.shot), "-o", s(&plan), "--force"];
     for t in &su.targets {
         args.extend(["--target", t]);
     }
