@@ -10,7 +10,7 @@ use awl::io::truth::read_truth;
 use awl::report_html::write::{REPORT_FILE, write_report};
 use awl::report_html::{PageParams, evaluate_page};
 
-use super::common::set_threads;
+use super::common::{lock_outputs, set_threads};
 
 /// Arguments of `awl evaluate`.
 #[derive(clap::Args)]
@@ -78,7 +78,8 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(truth) = &args.truth {
         check.input_file(truth, "--truth");
     }
-    check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS).check()?;
+    // held until the folder is in place: no other run writes it meanwhile
+    let _outputs = lock_outputs(check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS))?;
     let model = super::common::read_cloud_warned(&args.model)?;
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
     model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
