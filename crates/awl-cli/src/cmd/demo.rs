@@ -115,6 +115,9 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let truth_path = scan_dir.join("truth.json");
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
     let fuse_html = super::fuse::write_outputs(&fuse_dir, &job, Some(rmse_m))?;
     let model_path = fuse_dir.join("model.ply");

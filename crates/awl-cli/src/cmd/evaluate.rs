@@ -104,9 +104,13 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     inputs.extend(args.truth.as_deref());
     write_outputs(&args.output, &evaluation, &inputs, &subject(&args.model, &args.cad))?;
     let s = &evaluation.summary;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(s)?);
     } else {
+        // (evaluate refuses a summary with no on-object point: the RMSE is there)
         let rmse = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m * 1e3);
         println!(
             "RMSE {rmse:.3} mm (points within {:.0} mm of the CAD; all points {:.3} mm), completeness@5mm {:.1} %, {} points, {:.1} % off the object; alignment {}; wrote {}",
