@@ -43,6 +43,15 @@ pub enum Error {
         /// What is wrong with it.
         message: String,
     },
+    /// A computed figure is not a finite number (NaN or infinite): a result holding it would mean
+    /// nothing, so none is given.
+    #[error("{what} is not finite: {message}")]
+    NotFinite {
+        /// The figure (`the RMSE of the on-object points`).
+        what: String,
+        /// Why, and what to check.
+        message: String,
+    },
     /// A robot controller could not be reached, did not answer in time, or refused what was sent.
     #[error("robot controller {address}: {message}")]
     Robot {

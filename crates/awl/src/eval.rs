@@ -26,6 +26,7 @@ pub mod evaluate;
 pub mod file;
 pub mod global;
 pub mod heatmap;
+pub mod sanity;
 pub mod summary;
 pub mod trajectory;
 

@@ -333,3 +333,80 @@ fn bad_input_gives_typed_errors_naming_the_file_or_field() {
     assert!(err.to_string().contains("errors.ply"), "{err}");
     assert!(Path::new(&out.join("summary.json")).is_file());
 }
+
+/// The box of `sim_reference/box_seed1` as a model: 30 000 samples of its CAD with 0.5 mm noise,
+/// placed in the world by its truth.json; and the truth's `T_world_object`.
+fn box_model() -> (PointCloud, Isometry3<f64>) {
+    let truth = awl::io::truth::read_truth(&shared_data().join("sim_reference/box_seed1")).expect("truth");
+    let samples = reference_cad("box_seed1").sample_surface(30_000, 5).expect("samples");
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let noise = Normal::new(0.0f32, 0.0005).expect("normal");
+    let points = samples
+        .points
+        .iter()
+        .map(|p| {
+            let q = Point3::from(p.coords + Vector3::from_fn(|_, _| noise.sample(&mut rng)));
+            truth.world_from_object.cast::<f32>() * q
+        })
+        .collect();
+    (PointCloud::from_points(points), truth.world_from_object)
+}
+
+/// The sanity checks (`eval::sanity`): the right CAD from the right truth gives no warning; a truth
+/// in millimetres is an error naming the units, never a NaN; another part's CAD warns.
+#[test]
+fn a_wrong_cad_warns_a_truth_in_millimetres_is_refused_the_right_pair_is_quiet() {
+    let (model, world_from_object) = box_model();
+    let (box_cad, shell_cad) = (reference_cad("box_seed1"), reference_cad("shell_seed1"));
+    let params = EvaluateParams::default();
+
+    let right = evaluate(&model, &box_cad, Some(&world_from_object.inverse()), &params).expect("evaluate");
+    let s = &right.summary;
+    println!("right pair: sanity {:?}", s.sanity);
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    assert!(s.sanity.near_fraction > 0.99, "{}", s.sanity.near_fraction);
+    assert!(s.sanity.size_ratio < 1.1, "{}", s.sanity.size_ratio);
+    let rmse = s.distances.on_object.as_ref().expect("on object").rmse_m;
+    // the distance to a face is the noise's normal component: 0.5 mm RMS (30 000 samples: within 10 %)
+    assert!((rmse - 0.0005).abs() < 0.00005, "RMSE {rmse} m");
+
+    // truth.json in millimetres: the translation 1000x
+    let mut mm = world_from_object.inverse();
+    mm.translation.vector *= 1000.0;
+    match evaluate(&model, &box_cad, Some(&mm), &params) {
+        Ok(e) => {
+            panic!("a start in millimetres must be refused, got {:?} / {:?}", e.summary.distances, e.summary.warnings)
+        }
+        Err(e) => {
+            let m = e.to_string();
+            println!("millimetres: {m}");
+            assert!(matches!(e, Error::NotFinite { .. } | Error::Invalid { .. }), "{e:?}");
+            assert!(m.contains("millimetres"), "{m}");
+        }
+    }
+
+    // another part's CAD, no start: aligned as well as it goes, and warned
+    let wrong = evaluate(&model, &shell_cad, None, &params).expect("evaluate");
+    let s = &wrong.summary;
+    let rmse = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
+    println!(
+        "box model vs shell CAD: RMSE {:.3} mm, near {:.1} %, sizes {:.3} / {:.3} m; warnings {:?}",
+        rmse * 1e3,
+        s.sanity.near_fraction * 100.0,
+        s.sanity.model_size_m,
+        s.sanity.cad_size_m,
+        s.warnings
+    );
+    assert!(s.sanity.near_fraction < 0.5, "{}", s.sanity.near_fraction);
+    assert!(s.warnings.iter().any(|w| w.contains("within 5 mm of the CAD")), "{:?}", s.warnings);
+
+    // the CAD in millimetres (1000x): the sizes differ, warned (or refused, naming the sizes)
+    let mut big = box_cad.clone();
+    big.vertices.iter_mut().for_each(|v| v.coords *= 1000.0);
+    let said = match evaluate(&model, &big, Some(&world_from_object.inverse()), &params) {
+        Ok(e) => e.summary.warnings.join("; "),
+        Err(e) => e.to_string(),
+    };
+    println!("CAD in millimetres: {said}");
+    assert!(said.contains("differ by") && said.contains("millimetres"), "{said}");
+}

@@ -15,7 +15,7 @@ use awl::sim::calibration::{CalibrationSimParams, simulate_calibration};
 use awl::transform::rows_from_isometry;
 use serde_json::json;
 
-use super::common::write_json;
+use super::common::{lock_outputs, write_json};
 
 /// Arguments of `awl calibrate`.
 #[derive(clap::Args)]
@@ -183,7 +183,7 @@ fn write_simulated(args: &HandEyeArgs, path: &Path) -> anyhow::Result<()> {
     if let Some(truth) = &args.truth {
         check.output_file(truth, "--truth");
     }
-    check.check()?;
+    let _outputs = lock_outputs(&check)?;
     let params = CalibrationSimParams { count: args.count, seed: args.seed, ..CalibrationSimParams::default() };
     let capture = simulate_calibration(&params)?;
     write_poses(path, &capture.poses)?;
@@ -237,7 +237,8 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     };
     let params = handeye_params(args)?;
     let method = params.method;
-    OutputCheck::new(args.force).input_file(poses_path, "--poses").output_file(output, "-o").check()?;
+    let _outputs =
+        lock_outputs(OutputCheck::new(args.force).input_file(poses_path, "--poses").output_file(output, "-o"))?;
     let poses = read_poses(poses_path)?;
     let result =
         calibrate(&poses, &params).with_context(|| format!("{}: hand-eye calibration failed", poses_path.display()))?;
@@ -326,7 +327,7 @@ fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
             check.input_file(&capture.dir.join(d), "a depth image the capture names");
         }
     }
-    check.output_file(output, "-o").check()?;
+    let _outputs = lock_outputs(check.output_file(output, "-o"))?;
     let params = CaptureParams {
         handeye: handeye_params(args)?,
         corner_bias: !(args.no_corner_bias || args.no_refine),

@@ -5,6 +5,7 @@ use std::io::IsTerminal;
 use std::path::Path;
 
 use anyhow::Context;
+use awl::io::outputs::{OutputCheck, OutputGuard};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Sets the number of worker threads once for the whole process (default: all cores).
@@ -49,6 +50,17 @@ pub fn read_mesh_warned(path: &Path) -> awl::Result<awl::mesh::TriMesh> {
     let loaded = awl::io::mesh::read_mesh_checked(path)?;
     loaded.warnings.iter().for_each(|w| eprintln!("warning: {w}"));
     Ok(loaded.value)
+}
+
+/// Checks a command's outputs against its inputs and takes their locks ([`OutputCheck::check_and_lock`]),
+/// printing on stderr what taking them cleared (a dead run's lock or staging folder). Keep the guard
+/// until the outputs are written: dropping it releases the locks.
+pub fn lock_outputs(check: &OutputCheck) -> anyhow::Result<OutputGuard> {
+    let guard = check.check_and_lock()?;
+    for note in guard.notes() {
+        eprintln!("note: {note}");
+    }
+    Ok(guard)
 }
 
 /// Writes pretty JSON atomically.

@@ -15,7 +15,7 @@ use awl::io::truth::read_truth;
 use awl::pipeline::FuseConfig;
 use awl::sim::{SceneKind, SimParams, simulate, write_simulation};
 
-use super::common::{prepare_output, set_threads};
+use super::common::{lock_outputs, prepare_output, set_threads};
 
 /// The simulated workpiece.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -56,14 +56,17 @@ pub struct DemoArgs {
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     set_threads(args.threads)?;
-    prepare_output(&args.output, args.force, &[])?;
     let (scan_dir, fuse_dir, eval_dir) =
         (args.output.join("scan"), args.output.join("fuse"), args.output.join("evaluate"));
-    OutputCheck::new(args.force)
-        .output_folder(&scan_dir, "-o DIR/scan", super::simulate::SIMULATE_OUTPUTS)
-        .output_folder(&fuse_dir, "-o DIR/fuse", super::fuse::FUSE_OUTPUTS)
-        .output_folder(&eval_dir, "-o DIR/evaluate", super::evaluate::EVALUATE_OUTPUTS)
-        .check()?;
+    // DIR locked first (a second demo into it is refused naming this one), held to the end
+    let _outputs = lock_outputs(
+        OutputCheck::new(args.force)
+            .locked_folder(&args.output, "-o")
+            .output_folder(&scan_dir, "-o DIR/scan", super::simulate::SIMULATE_OUTPUTS)
+            .output_folder(&fuse_dir, "-o DIR/fuse", super::fuse::FUSE_OUTPUTS)
+            .output_folder(&eval_dir, "-o DIR/evaluate", super::evaluate::EVALUATE_OUTPUTS),
+    )?;
+    prepare_output(&args.output, args.force, &[])?;
     let say = |line: String| {
         if !args.quiet {
             println!("{line}");
@@ -112,6 +115,9 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let truth_path = scan_dir.join("truth.json");
     evaluation.summary.alignment.init_source = Some(truth_path.display().to_string());
     let s = &evaluation.summary;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
     let rmse_m = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m);
     let fuse_html = super::fuse::write_outputs(&fuse_dir, &job, Some(rmse_m))?;
     let model_path = fuse_dir.join("model.ply");

@@ -10,7 +10,7 @@ use awl::io::truth::read_truth;
 use awl::report_html::write::{REPORT_FILE, write_report};
 use awl::report_html::{PageParams, evaluate_page};
 
-use super::common::set_threads;
+use super::common::{lock_outputs, set_threads};
 
 /// Arguments of `awl evaluate`.
 #[derive(clap::Args)]
@@ -78,7 +78,8 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     if let Some(truth) = &args.truth {
         check.input_file(truth, "--truth");
     }
-    check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS).check()?;
+    // held until the folder is in place: no other run writes it meanwhile
+    let _outputs = lock_outputs(check.output_folder(&args.output, "-o", EVALUATE_OUTPUTS))?;
     let model = super::common::read_cloud_warned(&args.model)?;
     anyhow::ensure!(!model.is_empty(), "{}: the model has no points", args.model.display());
     model.validate(&args.model.display().to_string()).context("remove or fix the model's non-finite points")?;
@@ -103,9 +104,13 @@ pub fn run(args: &EvaluateArgs) -> anyhow::Result<()> {
     inputs.extend(args.truth.as_deref());
     write_outputs(&args.output, &evaluation, &inputs, &subject(&args.model, &args.cad))?;
     let s = &evaluation.summary;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(s)?);
     } else {
+        // (evaluate refuses a summary with no on-object point: the RMSE is there)
         let rmse = s.distances.on_object.as_ref().map_or(f64::NAN, |o| o.rmse_m * 1e3);
         println!(
             "RMSE {rmse:.3} mm (points within {:.0} mm of the CAD; all points {:.3} mm), completeness@5mm {:.1} %, {} points, {:.1} % off the object; alignment {}; wrote {}",

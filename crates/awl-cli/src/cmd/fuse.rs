@@ -14,7 +14,7 @@ use awl::scan::Scan;
 use awl::workpiece::json::write_workpiece;
 use awl::workpiece::{WORKPIECE_FILE, WorkpieceParams};
 
-use super::common::{set_threads, stage_bar, write_json};
+use super::common::{lock_outputs, set_threads, stage_bar, write_json};
 
 /// Arguments of `awl fuse`.
 #[derive(clap::Args)]
@@ -142,7 +142,8 @@ pub fn run(args: &FuseArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.config {
         check.input_file(path, "--config");
     }
-    check.output_folder(output, "-o", FUSE_OUTPUTS).check()?;
+    // held until the folder is in place: no other run writes it meanwhile
+    let _outputs = lock_outputs(check.output_folder(output, "-o", FUSE_OUTPUTS))?;
     let job = fuse_with_progress(&scan, &config, args.quiet)?;
     // the folder is made only once there is something to put in it
     write_outputs(output, &job, None)?;

@@ -10,7 +10,7 @@ use awl::rosbag::still::StillParams;
 use awl::rosbag::{ImportParams, ImportProgress, import_rosbag};
 use awl::scan::TagSpec;
 
-use crate::cmd::common::stage_bar;
+use crate::cmd::common::{lock_outputs, stage_bar};
 
 /// Arguments of `awl import`.
 #[derive(clap::Args)]
@@ -140,6 +140,8 @@ pub fn run(args: &ImportArgs) -> anyhow::Result<()> {
             args.output.display()
         );
     }
+    // the output folder locked until it is in place: a second import into it is refused naming this one
+    let _outputs = lock_outputs(awl::io::outputs::OutputCheck::new(args.force).locked_folder(&args.output, "-o"))?;
     let params = ImportParams {
         depth_topic: args.depth_topic.clone(),
         color_topic: args.color_topic.clone(),

@@ -11,7 +11,7 @@ use awl::transform::{Rows, isometry_from_rows, rows_from_isometry};
 use nalgebra::Isometry3;
 use serde_json::json;
 
-use super::common::{set_threads, write_json};
+use super::common::{lock_outputs, set_threads, write_json};
 
 /// Arguments of `awl register`.
 #[derive(clap::Args)]
@@ -61,7 +61,7 @@ pub fn run(args: &RegisterArgs) -> anyhow::Result<()> {
     if let Some(init) = &args.init {
         check.input_file(init, "--init");
     }
-    check.output_file(&args.output, "-o").check()?;
+    let _outputs = lock_outputs(check.output_file(&args.output, "-o"))?;
     let init = args.init.as_deref().map(read_init).transpose()?.unwrap_or_else(Isometry3::identity);
     let (source, target) = (prepared(&args.source)?, prepared(&args.target)?);
     let result = register(&source, &target, &init, &IcpParams::default())?;

@@ -155,7 +155,9 @@ pub const SIMULATE_OUTPUTS: &[&str] = &["scan.json", "truth.json", "cad.ply", "d
 
 /// Runs `awl simulate`.
 pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
-    OutputCheck::new(args.force).output_folder(&args.output, "-o", SIMULATE_OUTPUTS).check()?;
+    // held until the folder is in place: no other run writes it meanwhile
+    let _outputs =
+        super::common::lock_outputs(OutputCheck::new(args.force).output_folder(&args.output, "-o", SIMULATE_OUTPUTS))?;
     if args.capture {
         return run_capture(args);
     }

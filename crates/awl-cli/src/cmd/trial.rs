@@ -20,7 +20,7 @@ use awl::trial::{
 };
 use serde_json::json;
 
-use super::common::{prepare_output, set_threads, stage_bar, write_json};
+use super::common::{lock_outputs, prepare_output, set_threads, stage_bar, write_json};
 use super::demo::DemoScene;
 use super::pierce::{RobotArgs, robot_setup};
 
@@ -130,6 +130,8 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     // the arm and the tool are read and checked before the scan is simulated
     let robot = robot_setup(&args.robot)?.map(|(arm, ee_from_tool, params)| TrialRobot { arm, ee_from_tool, params });
     check_robot_inputs(args)?;
+    // the output folder locked to the end: a second trial into it is refused naming this one
+    let _outputs = lock_outputs(awl::io::outputs::OutputCheck::new(args.force).locked_folder(&args.output, "-o"))?;
     prepare_output(&args.output, args.force, &["scan", "fuse", "shots"])?;
     let say = |line: String| {
         if !args.quiet {

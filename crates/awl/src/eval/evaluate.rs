@@ -6,6 +6,8 @@
 //!    fine, Tukey kernel (floor, clutter and the never-seen bottom get no weight); from several
 //!    global candidates the one with the best score (global module docs) wins.
 //! 3. Metrics: see [`EvaluationSummary`] and its fields.
+//! 4. Sanity ([`super::sanity`]): a figure that is not finite is an error; a model and a CAD (or a
+//!    start pose) that do not belong together give warnings in the summary.
 
 use std::time::Instant;
 
@@ -16,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use super::MeshDistance;
 use super::global::{GlobalParams, SCORE_SEED, global_align, score_alignment, subset};
 use super::heatmap::COLORMAP;
+use super::sanity;
 use super::summary::{
     AlignmentSummary, CompletenessAt, CompletenessSummary, DistanceStats, DistanceSummary, EvaluationSummary,
     GlobalSummary, HeatmapInfo, SUMMARY_FORMAT, Timings, histogram,
@@ -130,7 +133,9 @@ pub struct Evaluation {
 ///
 /// # Errors
 /// [`Error::Invalid`] naming the input: a model with fewer than 6 points or a non-finite point, a
-/// degenerate CAD, a non-finite `init`, bad parameters, or an ICP failure.
+/// degenerate CAD, a non-finite `init`, bad parameters, or an ICP failure (with the start pose's
+/// warnings: millimetres?). [`Error::NotFinite`] naming a figure of the summary that is not finite
+/// (no model point on the object: no RMSE), with the warnings so far.
 pub fn evaluate(
     model: &PointCloud,
     cad: &TriMesh,
@@ -164,9 +169,10 @@ pub fn evaluate(
             (starts, Some(GlobalSummary { hypotheses: g.hypotheses, refined, refined_scores: Vec::new() }))
         }
     };
+    let start_warnings = init.map(|t| sanity::start_warnings(t).0).unwrap_or_default();
     let mut best: Option<(IcpResult, Isometry3<f64>, f64, f64)> = None;
     for start in &starts {
-        let icp = register(&source, &cad_cloud, start, &params.icp)?;
+        let icp = register(&source, &cad_cloud, start, &params.icp).map_err(|e| with_warnings(e, &start_warnings))?;
         let (score, inliers) = score_alignment(&scored, &icp.target_from_source, &mesh, tau);
         if let Some(g) = global.as_mut() {
             g.refined_scores.push(score);
@@ -206,6 +212,7 @@ pub fn evaluate(
         inlier_fraction,
         score_threshold_m: tau,
     };
+    let (sanity, warnings) = sanity::check(&model.points, &cad_cloud.points, &distances_m, init);
     let t_total = t0.elapsed().as_secs_f64();
     let summary = EvaluationSummary {
         format: SUMMARY_FORMAT.into(),
@@ -223,8 +230,24 @@ pub fn evaluate(
             metrics_s: t_total - t_align,
             total_s: t_total,
         },
+        sanity,
+        warnings,
     };
+    sanity::check_finite(&summary).map_err(|e| with_warnings(e, &summary.warnings))?;
     Ok(Evaluation { object_from_model, model_object, distances_m, summary })
+}
+
+/// `e` with `warnings` (what the sanity checks saw so far) appended to its message.
+fn with_warnings(e: Error, warnings: &[String]) -> Error {
+    if warnings.is_empty() {
+        return e;
+    }
+    let also = format!(" (and: {})", warnings.join("; "));
+    match e {
+        Error::Invalid { what, message } => Error::Invalid { what, message: message + &also },
+        Error::NotFinite { what, message } => Error::NotFinite { what, message: message + &also },
+        other => other,
+    }
 }
 
 /// Completeness of `model_object` (CAD frame): see [`CompletenessSummary`].

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::global::Candidate;
+use super::sanity::Sanity;
 use crate::registration::IcpResult;
 use crate::transform::Rows;
 
@@ -186,6 +187,13 @@ pub struct EvaluationSummary {
     pub heatmap: HeatmapInfo,
     /// Timings.
     pub timings_s: Timings,
+    /// The sanity checks' numbers (see `eval::sanity`).
+    #[serde(default)]
+    pub sanity: Sanity,
+    /// Why the figures may mean nothing (a model and a CAD that do not match, a start pose of other
+    /// units or another scene), one sentence each; empty when every check passes.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 impl EvaluationSummary {

@@ -277,6 +277,9 @@ fn check_convention(
         .filter(|f| f.inversion != Inversion::Both)
         .min_by(|a, b| a.median_translation_mm.total_cmp(&b.median_translation_mm));
     let accept = "or accept the poses as given with allow_inverted_fit (--allow-inverted-fit)";
+    // shuffled or shifted pairs fit no convention either, and can look like an inverted one
+    let pairs = "the robot and camera poses are not pairs taken at the same moments (shuffled, shifted by one, or \
+                 stamped at different times): pose k's T_base_ee and T_camera_target must be recorded at the same stop";
     let (what, message) = match best {
         Some(best)
             if given > params.outlier_floor_mm && best.median_translation_mm * params.inverted_fit_factor <= given =>
@@ -289,7 +292,7 @@ fn check_convention(
             let message = format!(
                 "the poses fit {:.0}x better with every {fields} inverted (median residual {:.2} mm / {:.3} deg, \
                  against {given:.1} mm as given): the file most likely holds {holds}; invert {fields} in every \
-                 pose, {accept}",
+                 pose, {accept}. If it does hold the fields as named, {pairs}",
                 given / best.median_translation_mm.max(1e-12),
                 best.median_translation_mm,
                 best.median_rotation_deg,
@@ -302,12 +305,23 @@ fn check_convention(
             if camera_m <= target_m {
                 return Ok(());
             }
-            let message = format!(
-                "the solution puts the camera {camera_m:.3} m from the flange, farther than the target from the robot \
-                 base ({target_m:.3} m): the file most likely holds T_ee_base and T_target_camera (both inverted fit \
-                 exactly as well, with T_ee_camera and T_base_target swapped); invert both fields in every pose, \
-                 {accept}"
-            );
+            let message = if given > params.outlier_floor_mm {
+                // both inverted fit exactly as well as the right convention: a bad fit as given is not that
+                let single = best.map_or(f64::NAN, |b| b.median_translation_mm);
+                format!(
+                    "the poses fit no convention (median residual {given:.1} mm as given, {single:.1} mm with the \
+                     better single field inverted) and the solution puts the camera {camera_m:.3} m from the flange, \
+                     farther than the target from the robot base ({target_m:.3} m): most likely {pairs}. If they are \
+                     pairs, the file may hold T_ee_base and T_target_camera: invert both fields in every pose, {accept}"
+                )
+            } else {
+                format!(
+                    "the solution puts the camera {camera_m:.3} m from the flange, farther than the target from the \
+                     robot base ({target_m:.3} m): the file most likely holds T_ee_base and T_target_camera (both \
+                     inverted fit exactly as well, with T_ee_camera and T_base_target swapped); invert both fields in \
+                     every pose, {accept}. Or {pairs}"
+                )
+            };
             ("poses[*].T_base_ee and T_camera_target", message)
         }
     };

@@ -5,6 +5,7 @@
 
 pub mod capture;
 pub mod image;
+pub mod lock;
 pub mod mesh;
 pub mod outputs;
 pub mod pcd;
@@ -42,20 +43,23 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
 /// Writes `bytes` to `path` atomically: a temporary file beside it, fsync, then rename.
 ///
 /// # Errors
-/// [`Error::Io`] naming `path` when any step fails; the temporary file is removed.
+/// [`Error::Io`] naming `path` when any step fails; [`Error::Invalid`] from
+/// [`lock::confirm_write`] when a lock of this run covering `path` is no longer its own, or `path`
+/// appeared meanwhile (without `--force`). The temporary file is removed.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = temp_sibling(path);
     let result = (|| {
         let mut file = fs::File::create(&tmp)?;
         file.write_all(bytes)?;
-        file.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
+        file.sync_all()
+    })()
+    .map_err(|e| Error::io(path, e))
+    .and_then(|()| lock::confirm_write(path))
+    .and_then(|()| fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
+    if result.is_err() {
         let _ = fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
     }
-    Ok(())
+    result
 }
 
 /// A hidden temporary path next to `path`, unique to this process.

@@ -10,6 +10,12 @@
 //! - an output that exists already, unless `force` (`--force`); with it, an output folder that holds
 //!   entries the command does not write (a user's own files) is still refused.
 //!
+//! [`OutputCheck::check_and_lock`] also locks every output ([`crate::io::lock`]: a `.NAME.awl-lock` file beside it) and returns
+//! the locks as an [`OutputGuard`], which the command keeps until its outputs are in place: a second
+//! run on the same output is refused at its start, naming the first (pid, host, start time), and the
+//! commit refuses when the lock is no longer this run's or (without `force`) the output appeared
+//! meanwhile. Dropping the guard (also on error) releases the locks.
+//!
 //! [`StagedFolder`] writes an output folder as a temporary sibling renamed into place at the end, and
 //! [`write_files_atomic`] several files that appear together or not at all: a run writes all its
 //! outputs or none.
@@ -19,6 +25,7 @@ use std::io::Write;
 use std::path::{Component, Path, PathBuf};
 
 use crate::error::{Error, Result};
+use crate::io::lock::{LockFile, confirm_write};
 use crate::io::temp_sibling;
 
 /// One path of an [`OutputCheck`].
@@ -42,6 +49,37 @@ pub struct OutputCheck {
     force: bool,
     inputs: Vec<Entry>,
     outputs: Vec<Entry>,
+    /// Folders the command writes into without owning them whole (locked only).
+    locked: Vec<Entry>,
+}
+
+/// The locks of one command run's outputs ([`OutputCheck::check_and_lock`]): keep it until the outputs are
+/// written; dropping it releases them.
+#[derive(Debug, Default)]
+pub struct OutputGuard {
+    locks: Vec<LockFile>,
+    ids: Vec<u64>,
+    notes: Vec<String>,
+}
+
+impl OutputGuard {
+    /// What taking the locks cleared, one sentence each: stale locks of runs that no longer exist,
+    /// their staging leftovers (for the CLI to print).
+    pub fn notes(&self) -> &[String] {
+        &self.notes
+    }
+
+    /// The lock files held.
+    pub fn lock_files(&self) -> Vec<&Path> {
+        self.locks.iter().map(LockFile::path).collect()
+    }
+}
+
+impl Drop for OutputGuard {
+    fn drop(&mut self) {
+        crate::io::lock::release(&self.ids);
+        // the locks go after the records: `self.locks` drops next, removing the files
+    }
 }
 
 /// `path` made absolute with symlinks resolved; a path that does not exist (an output not yet
@@ -142,12 +180,78 @@ impl OutputCheck {
         self
     }
 
-    /// Refuses the run (see the module docs) before anything is written.
+    /// A folder the command writes into without owning it whole (`awl demo -o DIR` writes DIR/scan,
+    /// DIR/fuse, ...): only locked, so no other run writes there meanwhile; the outputs inside it
+    /// share its lock.
+    pub fn locked_folder(&mut self, path: &Path, what: &str) -> &mut Self {
+        self.locked.push(Self::entry(path, true, what, &[]));
+        self
+    }
+
+    /// Refuses the run (see the module docs) before anything is written; takes no lock (see
+    /// [`OutputCheck::check_and_lock`], which every command writing outputs should use).
     ///
     /// # Errors
     /// [`Error::Invalid`] naming the output (its option and path), the input or other output it
     /// collides with, and what to change.
     pub fn check(&self) -> Result<()> {
+        self.check_collisions()?;
+        self.check_all_existing()
+    }
+
+    /// [`OutputCheck::check`], with every output (and [`OutputCheck::locked_folder`]) locked in
+    /// between the collision and the existence checks: the guard is kept until the outputs are in
+    /// place (the commit confirms the locks), a second run on any of them is refused here.
+    ///
+    /// # Errors
+    /// Those of [`OutputCheck::check`]; [`Error::Invalid`] naming the output and the other run
+    /// holding its lock (pid, host, start time); [`Error::Io`] naming a lock file that cannot be
+    /// written. The locks taken are released.
+    pub fn check_and_lock(&self) -> Result<OutputGuard> {
+        self.check_collisions()?;
+        let guard = self.take_locks()?;
+        self.check_all_existing()?;
+        Ok(guard)
+    }
+
+    fn check_all_existing(&self) -> Result<()> {
+        for o in &self.outputs {
+            self.check_existing(o, &format!("{} `{}`", o.what, o.given.display()))?;
+        }
+        Ok(())
+    }
+
+    /// Takes a lock per output and locked folder, except those inside another one (they share its
+    /// lock), and records each in the process's registry for the commit.
+    fn take_locks(&self) -> Result<OutputGuard> {
+        let mut guard = OutputGuard::default();
+        let all: Vec<&Entry> = self.locked.iter().chain(&self.outputs).collect();
+        let covered =
+            |e: &Entry| all.iter().any(|o| o.resolved != e.resolved && o.folder && e.resolved.starts_with(&o.resolved));
+        let mut owners: Vec<(PathBuf, usize)> = Vec::new();
+        for e in all.iter().filter(|e| !covered(e)) {
+            if owners.iter().any(|(p, _)| *p == e.resolved) {
+                continue;
+            }
+            let name = format!("{} `{}`", e.what, e.given.display());
+            if let Some(lock) = LockFile::acquire(&e.resolved, &name, &mut guard.notes)? {
+                owners.push((e.resolved.clone(), guard.locks.len()));
+                guard.locks.push(lock);
+            }
+        }
+        for e in &all {
+            let owner =
+                owners.iter().filter(|(p, _)| e.resolved.starts_with(p)).max_by_key(|(p, _)| p.components().count());
+            if let Some((_, k)) = owner {
+                let name = format!("{} `{}`", e.what, e.given.display());
+                let folder = e.folder;
+                guard.ids.push(crate::io::lock::register(&e.resolved, &guard.locks[*k], self.force, folder, &name));
+            }
+        }
+        Ok(guard)
+    }
+
+    fn check_collisions(&self) -> Result<()> {
         for (k, o) in self.outputs.iter().enumerate() {
             let name = format!("{} `{}`", o.what, o.given.display());
             for i in &self.inputs {
@@ -189,7 +293,6 @@ impl OutputCheck {
                     ));
                 }
             }
-            self.check_existing(o, &name)?;
         }
         Ok(())
     }
@@ -241,8 +344,11 @@ impl OutputCheck {
 /// old one removed (put back when the rename fails).
 ///
 /// # Errors
-/// [`Error::Io`] naming `dir` when a rename fails, or the old folder when it cannot be removed.
+/// [`Error::Invalid`] from [`confirm_write`] when this run's lock on `dir` is no longer its own or
+/// `dir` appeared meanwhile (without `force`); [`Error::Io`] naming `dir` when a rename fails, or the
+/// old folder when it cannot be removed.
 pub fn replace_folder(tmp: &Path, dir: &Path) -> Result<()> {
+    confirm_write(dir)?;
     if fs::symlink_metadata(dir).is_err() {
         return fs::rename(tmp, dir).map_err(|e| Error::io(dir, e));
     }
@@ -316,7 +422,8 @@ impl Drop for StagedFolder {
 /// when any write fails, none of the files is replaced.
 ///
 /// # Errors
-/// [`Error::Io`] naming the file that failed; every temporary file is removed.
+/// [`Error::Io`] naming the file that failed, or [`Error::Invalid`] from [`confirm_write`] (a lock
+/// lost, an output that appeared); every temporary file is removed.
 pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
     let temps: Vec<PathBuf> = files.iter().map(|(p, _)| temp_sibling(p)).collect();
     let cleanup = |temps: &[PathBuf]| {
@@ -333,6 +440,12 @@ pub fn write_files_atomic(files: &[(&Path, &[u8])]) -> Result<()> {
         if let Err(e) = written {
             cleanup(&temps);
             return Err(Error::io(path, e));
+        }
+    }
+    for (path, _) in files {
+        if let Err(e) = confirm_write(path) {
+            cleanup(&temps);
+            return Err(e);
         }
     }
     for ((path, _), tmp) in files.iter().zip(&temps) {
@@ -411,5 +524,147 @@ mod tests {
         let good = dir.path().join("g");
         assert!(write_files_atomic(&[(good.as_path(), b"g"), (bad.as_path(), b"b")]).is_err());
         assert!(!good.exists(), "nothing written when one file fails");
+    }
+
+    /// The pid of a child process that has finished and been reaped.
+    fn dead_pid() -> u32 {
+        let mut child = std::process::Command::new("true").spawn().expect("spawn true");
+        let pid = child.id();
+        child.wait().expect("wait");
+        pid
+    }
+
+    fn locked(check: &OutputCheck) -> String {
+        check.check_and_lock().err().map(|e| e.to_string()).unwrap_or_default()
+    }
+
+    fn fuse_like(out: &Path, force: bool) -> OutputCheck {
+        let mut c = OutputCheck::new(force);
+        c.output_folder(out, "-o", &["model.ply"]);
+        c
+    }
+
+    #[test]
+    fn a_second_lock_on_one_folder_is_refused_naming_it_and_the_holder() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("deep/out");
+        let first = fuse_like(&out, false).check_and_lock().expect("the first run locks");
+        let lock = dir.path().join("deep/.out.awl-lock");
+        assert_eq!(first.lock_files(), vec![lock.as_path()]);
+        let owner = crate::io::lock::read_owner(&lock).expect("the lock names its owner");
+        assert_eq!(owner.pid, std::process::id());
+        let m = locked(&fuse_like(&out, false));
+        let pid = format!("pid {}", std::process::id());
+        assert!(m.contains(&out.display().to_string()) && m.contains(&pid), "{m}");
+        assert!(m.contains("another awl run is writing this output") && m.contains(&owner.started), "{m}");
+        // --force does not take a lock held by a live run either
+        assert!(locked(&fuse_like(&out, true)).contains(&pid));
+        // an output file inside a locked folder shares its lock: refused too
+        let mut c = OutputCheck::new(false);
+        c.locked_folder(&dir.path().join("deep"), "-o");
+        assert!(c.check_and_lock().is_ok(), "another folder is free");
+        drop(first);
+        assert!(!lock.exists(), "released on drop");
+        assert!(!dir.path().join("deep").exists(), "the folder made for the lock removed with it");
+        let again = fuse_like(&out, false).check_and_lock().expect("free again");
+        drop(again);
+    }
+
+    #[test]
+    fn a_stale_lock_and_the_dead_runs_staging_leftovers_are_cleared() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("out");
+        let dead = dead_pid();
+        let lock = dir.path().join(".out.awl-lock");
+        let stale = serde_json::json!({
+            "pid": dead, "host": crate::io::lock::host_name(), "started_unix_s": 0,
+            "started": "1970-01-01 00:00:00 UTC", "process_start_ticks": null, "command": "awl fuse", "token": "x"
+        });
+        fs::write(&lock, stale.to_string()).expect("write");
+        let leftover = dir.path().join(format!(".out.tmp-{dead}"));
+        fs::create_dir(&leftover).expect("mkdir");
+        fs::write(leftover.join("model.ply"), b"half").expect("write");
+        let moved_aside = dir.path().join(format!(".out.old-{dead}"));
+        fs::create_dir(&moved_aside).expect("mkdir");
+        fs::write(moved_aside.join("model.ply"), b"earlier").expect("write");
+        // not ours: other names, a live pid (this process's parent is alive), a file of the user
+        let keep = [
+            dir.path().join(format!(".out.tmp-{}", std::os::unix::process::parent_id())),
+            dir.path().join(format!(".outs.tmp-{dead}")),
+            dir.path().join(format!(".out.tmp-{dead}x")),
+            dir.path().join("notes.txt"),
+        ];
+        for k in &keep {
+            fs::write(k, b"mine").expect("write");
+        }
+        // (--force: the folder put back is an earlier output, which the check then sees)
+        let guard = fuse_like(&out, true).check_and_lock();
+        let guard = match guard {
+            Ok(g) => g,
+            Err(e) => panic!("the stale lock is cleared: {e}"),
+        };
+        let notes = guard.notes().join("\n");
+        assert!(notes.contains("cleared the stale lock") && notes.contains(&format!("pid {dead}")), "{notes}");
+        assert!(notes.contains(&format!("removed `{}`", leftover.display())), "{notes}");
+        assert!(!leftover.exists(), "{notes}");
+        // the earlier output a killed commit had moved aside is put back
+        assert!(notes.contains("put back"), "{notes}");
+        assert!(!moved_aside.exists());
+        drop(guard);
+        assert_eq!(fs::read(out.join("model.ply")).expect("restored"), b"earlier");
+        for k in &keep {
+            assert_eq!(fs::read(k).expect("kept"), b"mine", "{}", k.display());
+        }
+        assert!(locked(&fuse_like(&out, false)).contains("pass --force"));
+    }
+
+    #[test]
+    fn the_commit_refuses_a_lost_lock_and_an_output_that_appeared() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("out");
+        let lock = dir.path().join(".out.awl-lock");
+        // the lock removed by hand and taken by another run meanwhile
+        let guard = fuse_like(&out, false).check_and_lock().expect("lock");
+        let staged = StagedFolder::begin(&out).expect("begin");
+        fs::write(staged.path().join("model.ply"), b"mine").expect("write");
+        fs::remove_file(&lock).expect("rm");
+        let other = fuse_like(&out, false).check_and_lock().expect("a second guard (as another run would)");
+        let m = staged.commit().err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(m.contains("is no longer its own") && m.contains(&out.display().to_string()), "{m}");
+        assert!(!out.exists(), "nothing replaced");
+        drop(other);
+        drop(guard);
+        // the output appeared meanwhile (a run without a lock): refused without --force
+        let guard = fuse_like(&out, false).check_and_lock().expect("lock");
+        let staged = StagedFolder::begin(&out).expect("begin");
+        fs::write(staged.path().join("model.ply"), b"late").expect("write");
+        fs::create_dir(&out).expect("mkdir");
+        fs::write(out.join("model.ply"), b"first").expect("write");
+        let m = staged.commit().err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(m.contains("appeared while this run was working"), "{m}");
+        assert_eq!(fs::read(out.join("model.ply")).expect("read"), b"first", "the other output kept");
+        drop(guard);
+        // with --force it is replaced; a file output the same
+        let guard = fuse_like(&out, true).check_and_lock().expect("lock");
+        let staged = StagedFolder::begin(&out).expect("begin");
+        fs::write(staged.path().join("model.ply"), b"forced").expect("write");
+        staged.commit().expect("commit");
+        assert_eq!(fs::read(out.join("model.ply")).expect("read"), b"forced");
+        drop(guard);
+        let file = dir.path().join("plan.json");
+        let mut c = OutputCheck::new(false);
+        c.output_file(&file, "-o");
+        let guard = c.check_and_lock().expect("lock");
+        fs::write(&file, b"other").expect("write");
+        let m = write_files_atomic(&[(file.as_path(), b"mine")]).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(m.contains("appeared"), "{m}");
+        let m = crate::io::write_atomic(&file, b"mine").err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(m.contains("appeared"), "{m}");
+        assert_eq!(fs::read(&file).expect("read"), b"other");
+        drop(guard);
+        assert!(fs::read_dir(dir.path()).expect("ls").all(|e| {
+            let n = e.expect("entry").file_name().to_string_lossy().into_owned();
+            !n.contains(".tmp-") && !n.ends_with(".awl-lock")
+        }));
     }
 }

@@ -63,6 +63,16 @@ fn summary_rows(s: &EvaluationSummary) -> Vec<KeyValue> {
         format!("{} of {} CAD surface samples; {facing}", s.completeness.samples_counted, s.completeness.samples),
     ));
     rows.push(KeyValue::new("CAD", format!("{} triangles, {:.4} m²", s.cad_triangles, s.cad_area_m2)));
+    let c = &s.sanity;
+    rows.push(KeyValue::with_id(
+        &format!("near the CAD (within {} mm, %)", c.near_m * 1e3),
+        format!("{:.2}", c.near_fraction * 100.0),
+        "near-cad",
+    ));
+    rows.push(KeyValue::new(
+        "sizes (bounding-sphere diameters)",
+        format!("model {:.3} m, CAD {:.3} m ({:.2}x)", c.model_size_m, c.cad_size_m, c.size_ratio),
+    ));
     rows.push(KeyValue::new(
         "time (s)",
         format!(
@@ -165,10 +175,18 @@ pub fn evaluate_page(evaluation: &Evaluation, subject: &str, params: &PageParams
             format!("{} distances for {} points", evaluation.distances_m.len(), evaluation.model_object.len()),
         ));
     }
-    let mut sections = vec![
+    let mut sections = Vec::new();
+    if !s.warnings.is_empty() {
+        // first, before any figure: they may mean nothing
+        sections.push(Section {
+            heading: "WARNING: these figures may mean nothing".into(),
+            blocks: vec![Block::Alert(s.warnings.clone())],
+        });
+    }
+    sections.extend([
         Section { heading: "Summary".into(), blocks: vec![Block::KeyValues(summary_rows(s))] },
         Section { heading: "Alignment".into(), blocks: alignment_blocks(&s.alignment) },
-    ];
+    ]);
     let max_m = s.heatmap.max_mm * 1e-3;
     let scale = ScalarScale { colormap: Colormap::Turbo, lo_m: 0.0, hi_m: max_m as f32 };
     let values: Vec<f32> = evaluation.distances_m.iter().map(|&d| d as f32).collect();

@@ -99,3 +99,41 @@ fn evaluate_page_has_ids_heatmaps_histogram_and_the_viewer() {
     short.distances_m.pop();
     assert!(evaluate_page(&short, "x", &params).is_err(), "one distance per point");
 }
+
+/// The sanity checks on the page: a quiet case has no alert; warnings come first, in the red box,
+/// before any figure. A NaN figure is refused naming it.
+#[test]
+fn warnings_are_the_first_thing_on_the_page_and_a_nan_is_refused_by_name() {
+    let mut e = offset_evaluation();
+    // every point 2.5 mm out: all within the 5 mm of the near check; the sizes: the CAD's farthest
+    // sample at the cube's half diagonal (0.3 sqrt 3 = 0.520 m), the model's 99th percentile below it
+    // (0.499 m): within 5 %
+    assert!(e.summary.warnings.is_empty(), "{:?}", e.summary.warnings);
+    assert_eq!(e.summary.sanity.near_fraction, 1.0);
+    assert!((e.summary.sanity.cad_size_m - 0.3 * 3f64.sqrt()).abs() < 0.002, "{:?}", e.summary.sanity);
+    assert!((1.0..1.05).contains(&e.summary.sanity.size_ratio), "{:?}", e.summary.sanity);
+    let page =
+        |e: &Evaluation| evaluate_page(e, "x", &PageParams::default()).expect("page").page.to_html().expect("html");
+    assert!(!page(&e).contains("id=\"warnings\""));
+    e.summary.warnings = vec!["only 1.0 % of the model's points lie within 5 mm of the CAD".into()];
+    let html = page(&e);
+    let (alert, summary) =
+        (html.find("id=\"warnings\"").expect("alert"), html.find("<h2>Summary</h2>").expect("summary"));
+    assert!(alert < summary, "the warnings come before the figures");
+    assert!(html.contains("<h2>WARNING: these figures may mean nothing</h2>"));
+    assert!(html.contains("<li>only 1.0 % of the model&#39;s points") || html.contains("<li>only 1.0 % of the model"));
+
+    crate::eval::sanity::check_finite(&e.summary).expect("finite");
+    e.summary.completeness.thresholds[1].fraction = f64::NAN;
+    let err = crate::eval::sanity::check_finite(&e.summary).err().map(|e| e.to_string()).unwrap_or_default();
+    assert_eq!(
+        err,
+        "the completeness at 5 mm is not finite: it is NaN: the evaluation means nothing; check the model, the CAD and the start pose"
+    );
+    e.summary.distances.on_object = None;
+    let err = crate::eval::sanity::check_finite(&e.summary).err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(
+        err.starts_with("the RMSE of the on-object points is not finite: no model point lies within 10 mm"),
+        "{err}"
+    );
+}

@@ -80,6 +80,8 @@ pub enum Block {
     Text(String),
     /// A bulleted list of plain-text items.
     List(Vec<String>),
+    /// Warnings that put the page's figures in doubt: a red box (`id="warnings"`), one item each.
+    Alert(Vec<String>),
     /// A two-column key/value table.
     KeyValues(Vec<KeyValue>),
     /// A table.
@@ -98,7 +100,8 @@ table{border-collapse:collapse;margin:8px 0;font-size:13px}td,th{border:1px soli
 th{background:#f2f2f2}tr.accepted td{background:#eef8ee}tr.rejected td{background:#fbeaea}tr.skipped td{color:#999}\
 figure{display:inline-block;margin:6px}figure img{width:560px;max-width:100%;border:1px solid #ddd}figcaption{font-size:12px;color:#555}\
 .viewer canvas{width:960px;max-width:100%;border:1px solid #888;cursor:grab}.hint{font-size:12px;color:#555}\
-.svg{display:inline-block;margin:6px}#js-errors:empty{display:none}#js-errors{color:#b00;border:1px solid #b00;padding:6px}";
+.svg{display:inline-block;margin:6px}\
+.alert{background:#fdecea;border:3px solid #b00;color:#600;padding:4px 12px;font-size:15px;font-weight:bold}#js-errors:empty{display:none}#js-errors{color:#b00;border:1px solid #b00;padding:6px}";
 
 /// Collects uncaught errors, rejected promises and console.error calls into #js-errors.
 const ERROR_CAPTURE: &str = "(function(){var q=[];function put(m){var el=document.getElementById('js-errors');\
@@ -156,6 +159,13 @@ fn block_html(s: &mut String, block: &Block, ids: &mut HashSet<String>, clouds: 
     match block {
         Block::Text(text) => {
             let _ = writeln!(s, "<p>{}</p>", xml_escape(text));
+        }
+        Block::Alert(items) => {
+            s.push_str("<div class=\"alert\" id=\"warnings\" role=\"alert\">\n<ul>\n");
+            for item in items {
+                let _ = writeln!(s, "<li>{}</li>", xml_escape(item));
+            }
+            s.push_str("</ul>\n</div>\n");
         }
         Block::List(items) => {
             s.push_str("<ul>\n");
