@@ -173,7 +173,8 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
     let mut shot = read_scan(&args.shot)?;
-    check_outputs(args, &model_path, &shot)?;
+    // the outputs are this run's alone until they are written (another run into them is refused)
+    let _outputs = check_outputs(args, &model_path, &shot)?;
     let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
     let model = super::common::read_cloud_warned(&model_path)
         .with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
@@ -271,8 +272,13 @@ fn stroke(args: &PierceArgs) -> anyhow::Result<Stroke> {
 }
 
 /// Refuses outputs that are an input (the workpiece, its model, a shot file, the targets or hand-eye
-/// file), lie in the shot folder, name the same file, or exist without `--force`.
-fn check_outputs(args: &PierceArgs, model: &Path, shot: &awl::scan::Scan) -> anyhow::Result<()> {
+/// file), lie in the shot folder, name the same file, exist without `--force`, or are being written
+/// by another run; locks them for this one (the guard).
+fn check_outputs(
+    args: &PierceArgs,
+    model: &Path,
+    shot: &awl::scan::Scan,
+) -> anyhow::Result<awl::io::outputs::OutputGuard> {
     let mut check = OutputCheck::new(args.force);
     check
         .input_file(&args.workpiece, "WORKPIECE")
@@ -295,7 +301,7 @@ fn check_outputs(args: &PierceArgs, model: &Path, shot: &awl::scan::Scan) -> any
             check.output_file(p, what);
         }
     }
-    Ok(check.check()?)
+    super::common::lock_outputs(&check)
 }
 
 fn print_summary(plan: &PiercePlan, args: &PierceArgs) {
