@@ -23,7 +23,7 @@ pub mod line;
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 use crate::error::{Error, Result};
 
@@ -161,6 +161,23 @@ impl Arm {
         }
         frames[7] = frames[6] * self.dh6_from_flange;
         frames
+    }
+
+    /// The centre of [`Self::reach_bound_m`]: `(0, 0, d1)`, base frame, metres (joint 2's height on
+    /// joint 1's axis for UR and Techman arms).
+    pub fn shoulder(&self) -> Point3<f64> {
+        Point3::new(0.0, 0.0, self.dh[0].d)
+    }
+
+    /// A distance from [`Self::shoulder`] no joint values put the flange's origin beyond, metres:
+    /// `|a1|`, plus `sqrt(a_i^2 + d_i^2)` of rows 2 to 6 (each row moves the frame's origin by
+    /// `d_i` along one axis and `a_i` along a perpendicular one), plus `T_dh6_flange`'s offset.
+    /// Larger than the reach the vendors state (it ignores the links' directions): a pose beyond
+    /// it is out of reach for certain.
+    pub fn reach_bound_m(&self) -> f64 {
+        self.dh[0].a.abs()
+            + self.dh[1..].iter().map(|j| j.a.hypot(j.d)).sum::<f64>()
+            + self.dh6_from_flange.translation.vector.norm()
     }
 
     /// The smallest distance of `q` to a joint limit, radians (negative when outside one).

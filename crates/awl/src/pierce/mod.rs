@@ -17,7 +17,9 @@ pub mod tool;
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, PierceParams, PiercePlan, PlannedTarget, plan};
 pub use predict::{PredictParams, Prediction, Tolerance};
-pub use reach::{PathJoints, ReachParams, ReachSetup, TargetReach, plan_reach, reach_target, shot_joints};
+pub use reach::{
+    PathJoints, ReachParams, ReachSetup, ReachWork, TargetReach, plan_reach, plan_reach_with, reach_target, shot_joints,
+};
 pub use safety::check_for_robot;
 pub use script::{ScriptSpeeds, techman_packets, tmsct_packet, urscript};
 pub use tool::{MAX_DEPTH_M, MAX_REACH_M, Stroke, ToolPoses, quaternion_xyzw, tm_pose, tool_poses, ur_pose};
