@@ -468,3 +468,35 @@ pub struct PathClearance {
     /// The path's points checked (all of them, or up to the first collision).
     pub samples_checked: usize,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tool_sizes_beyond_a_piercing_tool_are_refused_by_name() {
+        let ok = BodyParams { tool_radius_m: 0.1, tool_length_m: Some(1.0), ..BodyParams::default() };
+        ok.validate().expect("0.1 m radius, 1 m length: the largest accepted");
+        for (body, name) in [
+            (BodyParams { tool_radius_m: 0.1001, ..BodyParams::default() }, "tool_radius_m"),
+            (BodyParams { tool_radius_m: 1e9, ..BodyParams::default() }, "tool_radius_m"),
+            (BodyParams { tool_length_m: Some(1.001), ..BodyParams::default() }, "tool_length_m"),
+            (BodyParams { tool_length_m: Some(f64::INFINITY), ..BodyParams::default() }, "tool_length_m"),
+        ] {
+            let e = body.validate().expect_err("refused").to_string();
+            assert!(e.starts_with(name) && e.contains("m"), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_tool_and_a_straight_tool_s_flange_are_spin_invariant() {
+        let body = BodyParams::default();
+        let straight = spin_invariant_capsules(&Isometry3::translation(0.0, 0.0, 0.15), &body);
+        assert_eq!(straight.iter().map(|c| c.link).collect::<Vec<_>>(), [Link::Tool, Link::Flange]);
+        // the flange's face 150 mm behind the tip, its back 10 mm farther
+        assert!((straight[1].a - Point3::new(0.0, 0.0, -0.15)).norm() < 1e-15);
+        assert!((straight[1].b - Point3::new(0.0, 0.0, -0.16)).norm() < 1e-15);
+        let offset = spin_invariant_capsules(&Isometry3::translation(0.03, 0.0, 0.15), &body);
+        assert_eq!(offset.iter().map(|c| c.link).collect::<Vec<_>>(), [Link::Tool]);
+    }
+}

@@ -214,6 +214,38 @@ mod tests {
     }
 
     #[test]
+    fn no_joint_values_put_the_flange_beyond_the_reach_bound() {
+        for name in arms::KNOWN {
+            let arm = Arm::by_name(name).expect(name);
+            let bound = arm.reach_bound_m();
+            let mut farthest: f64 = 0.0;
+            // a deterministic sweep: joints 2 to 4 over a grid, the wrist stretched and folded
+            for i in 0..24 {
+                for j in 0..24 {
+                    for k in 0..8 {
+                        let q = [
+                            0.3,
+                            f64::from(i) * PI / 12.0,
+                            f64::from(j) * PI / 12.0 - PI,
+                            f64::from(k) * PI / 4.0,
+                            1.0,
+                            0.2,
+                        ];
+                        farthest =
+                            farthest.max((arm.base_from_flange(&q).translation.vector - arm.shoulder().coords).norm());
+                    }
+                }
+            }
+            assert!(farthest <= bound + 1e-12, "{name}: {farthest} > {bound}");
+            // and the bound is not loose by more than the wrist offsets (d4, d5, d6 at most)
+            let wrist: f64 = arm.dh[3..].iter().map(|j| j.d.abs()).sum();
+            assert!(bound - farthest < wrist, "{name}: {farthest} vs {bound}");
+        }
+        // UR5e: 0.425 + 0.3922 + 0.1333 + 0.0997 + 0.0996 m
+        assert!((Arm::by_name("ur5e").expect("ur5e").reach_bound_m() - 1.1498).abs() < 1e-12);
+    }
+
+    #[test]
     fn dh_row_matches_its_definition() {
         let j = DhJoint { a: 0.3, alpha: 0.7, d: 0.2, theta_offset: 0.1 };
         let q = 0.4;
