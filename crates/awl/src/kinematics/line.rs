@@ -267,7 +267,7 @@ pub fn check_path(arm: &Arm, poses: &[Isometry3<f64>], start: &IkSolution, param
                 )
             })?;
             let fail = |kind| LineFailure { segment, s, distance_m: travelled + length * s, kind };
-            let (raw, refused) = ik::raw_solutions(arm, &pose, prev[5])?;
+            let (raw, refused) = ik::raw_solutions_of(arm, &pose, prev[5], Some(start.branch))?;
             let Some(r) = raw.iter().find(|r| r.branch == start.branch) else {
                 let why = refused.iter().find(|f| f.branch.is_none_or(|b| b == start.branch)).map_or_else(
                     || "no solution of this configuration".to_string(),
