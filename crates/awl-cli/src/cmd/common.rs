@@ -37,6 +37,21 @@ pub fn stage_bar(quiet: bool) -> ProgressBar {
     bar
 }
 
+/// A progress bar over `total` items on stderr, hidden when `quiet`, when stderr is not a terminal
+/// or when there are fewer than 20 items (done before a bar is worth drawing).
+pub fn count_bar(quiet: bool, total: usize, what: &str) -> ProgressBar {
+    if quiet || total < 20 || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(total as u64);
+    let style = ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} {msg} (eta {eta})")
+        .unwrap_or_else(|_| ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar.set_message(what.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
 /// Reads a point cloud (`.ply` / `.pcd`), printing what the reader dropped or ignored (non-finite
 /// points, bytes after the body) as warnings on stderr.
 pub fn read_cloud_warned(path: &Path) -> awl::Result<awl::PointCloud> {

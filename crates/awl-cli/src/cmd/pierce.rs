@@ -13,7 +13,7 @@ use awl::kinematics::arm_file::read_arm;
 use awl::pierce::plan_file::{PlanSources, plan_json, plan_value_text, programs_json};
 use awl::pierce::{
     AxisChoice, HandEyePrior, LocateParams, PierceParams, PiercePlan, ReachParams, ScriptSpeeds, Stroke, Tolerance,
-    plan, plan_reach, shot_joints, techman_packets, urscript,
+    plan, plan_reach_with, shot_joints, techman_packets, urscript,
 };
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::TargetSpec;
@@ -225,7 +225,10 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
     plan.warnings.extend(warnings);
     if let Some((arm, ee_from_tool, reach)) = &robot {
         let reference = shot_joints(&shot)?;
-        plan_reach(&mut plan, arm, ee_from_tool, &model, workpiece.floor, reference, reach)?;
+        let bar = super::common::count_bar(args.quiet || args.json, plan.targets.len(), "targets' reach checked");
+        let progress = |done: usize, _total: usize| bar.set_position(done as u64);
+        plan_reach_with(&mut plan, arm, ee_from_tool, &model, workpiece.floor, reference, reach, &progress)?;
+        bar.finish_and_clear();
     }
     let sources = PlanSources { workpiece: &args.workpiece, shot: &args.shot, hand_eye: &hand_eye_source };
     // everything is computed before the first file is written

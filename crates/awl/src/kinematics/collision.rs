@@ -90,11 +90,21 @@ impl Default for BodyParams {
     }
 }
 
+/// The largest tool radius [`BodyParams::validate`] accepts, metres: 0.1 (a 200 mm wide tool is no
+/// piercing tool; larger values are typing errors, and every model point within the radius is
+/// looked at for every checked point of every path).
+pub const MAX_TOOL_RADIUS_M: f64 = 0.1;
+
+/// The largest tool length [`BodyParams::validate`] accepts, and the largest flange-to-TCP distance
+/// (`T_ee_tool`) the reach check takes, metres: 1.0 (the tool alone as long as a small arm's reach).
+pub const MAX_TOOL_LENGTH_M: f64 = 1.0;
+
 impl BodyParams {
     /// Checks the sizes.
     ///
     /// # Errors
-    /// [`Error::Invalid`] naming the field for a negative or non-finite size.
+    /// [`Error::Invalid`] naming the field for a negative or non-finite size, a `tool_radius_m`
+    /// above [`MAX_TOOL_RADIUS_M`] (0.1 m) or a `tool_length_m` above [`MAX_TOOL_LENGTH_M`] (1 m).
     pub fn validate(&self) -> Result<()> {
         let sizes = [
             ("tool_radius_m", self.tool_radius_m),
@@ -109,6 +119,17 @@ impl BodyParams {
         for (name, v) in sizes {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(Error::invalid(name, format!("must be a non-negative length in metres, got {v}")));
+            }
+        }
+        for (name, v, max) in [
+            ("tool_radius_m", self.tool_radius_m, MAX_TOOL_RADIUS_M),
+            ("tool_length_m", self.tool_length_m.unwrap_or(0.0), MAX_TOOL_LENGTH_M),
+        ] {
+            if v > max {
+                return Err(Error::invalid(
+                    name,
+                    format!("{v} m is larger than a piercing tool can be (at most {max} m): metres expected"),
+                ));
             }
         }
         Ok(())
@@ -167,6 +188,27 @@ pub fn capsules(arm: &Arm, q: &Joints, ee_from_tool: &Isometry3<f64>, body: &Bod
             b: frames[i + 1] * Point3::origin(),
             radius_m: body.wrist_radius_m,
         });
+    }
+    out
+}
+
+/// The capsules of [`capsules`] that stay where they are when the tool turns about its own z axis
+/// (the piercing axis), in the tool frame: the tool's, and the flange's when its axis is the tool's
+/// (a straight tool on the flange, within 1e-9 m). Placed at a tool pose they are where every spin
+/// and configuration puts them.
+pub fn spin_invariant_capsules(ee_from_tool: &Isometry3<f64>, body: &BodyParams) -> Vec<LinkCapsule> {
+    let tool_length = body.tool_length_m.unwrap_or_else(|| ee_from_tool.translation.vector.norm());
+    let tip_back = body.tool_radius_m.min(tool_length);
+    let mut out = vec![LinkCapsule {
+        link: Link::Tool,
+        a: Point3::new(0.0, 0.0, -tip_back),
+        b: Point3::new(0.0, 0.0, -tool_length),
+        radius_m: body.tool_radius_m,
+    }];
+    let tool_from_ee = ee_from_tool.inverse();
+    let (a, b) = (tool_from_ee * Point3::origin(), tool_from_ee * Point3::new(0.0, 0.0, -body.flange_thickness_m));
+    if [a, b].iter().all(|p| p.x.hypot(p.y) < 1e-9) {
+        out.push(LinkCapsule { link: Link::Flange, a, b, radius_m: body.flange_radius_m });
     }
     out
 }
@@ -344,15 +386,47 @@ impl Obstacles {
         target: &Point3<f64>,
         params: &CollisionParams,
     ) -> PathClearance {
-        let mut out = PathClearance { min: None, collision: None };
+        self.check_samples(arm, report, ee_from_tool, body, target, params, false)
+    }
+
+    /// [`Self::check_path`] stopped at the first collision: the same `collision`, and `min` the
+    /// smallest clearance over the points checked up to it (over the whole path when it is clear).
+    pub fn first_collision(
+        &self,
+        arm: &Arm,
+        report: &LineReport,
+        ee_from_tool: &Isometry3<f64>,
+        body: &BodyParams,
+        target: &Point3<f64>,
+        params: &CollisionParams,
+    ) -> PathClearance {
+        self.check_samples(arm, report, ee_from_tool, body, target, params, true)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn check_samples(
+        &self,
+        arm: &Arm,
+        report: &LineReport,
+        ee_from_tool: &Isometry3<f64>,
+        body: &BodyParams,
+        target: &Point3<f64>,
+        params: &CollisionParams,
+        stop: bool,
+    ) -> PathClearance {
+        let mut out = PathClearance { min: None, collision: None, samples_checked: 0 };
         for sample in &report.samples {
+            out.samples_checked += 1;
             let Some(c) = self.clearance(&capsules(arm, &sample.q, ee_from_tool, body), target, params) else {
                 continue;
             };
+            Clearance::keep_smaller(&mut out.min, c);
             if c.distance_m < params.min_clearance_m && out.collision.is_none() {
                 out.collision = Some(Collision { segment: sample.segment, s: sample.s, clearance: c });
+                if stop {
+                    break;
+                }
             }
-            Clearance::keep_smaller(&mut out.min, c);
         }
         out
     }
@@ -391,4 +465,38 @@ pub struct PathClearance {
     pub min: Option<Clearance>,
     /// The first point nearer than the minimum clearance, if any.
     pub collision: Option<Collision>,
+    /// The path's points checked (all of them, or up to the first collision).
+    pub samples_checked: usize,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tool_sizes_beyond_a_piercing_tool_are_refused_by_name() {
+        let ok = BodyParams { tool_radius_m: 0.1, tool_length_m: Some(1.0), ..BodyParams::default() };
+        ok.validate().expect("0.1 m radius, 1 m length: the largest accepted");
+        for (body, name) in [
+            (BodyParams { tool_radius_m: 0.1001, ..BodyParams::default() }, "tool_radius_m"),
+            (BodyParams { tool_radius_m: 1e9, ..BodyParams::default() }, "tool_radius_m"),
+            (BodyParams { tool_length_m: Some(1.001), ..BodyParams::default() }, "tool_length_m"),
+            (BodyParams { tool_length_m: Some(f64::INFINITY), ..BodyParams::default() }, "tool_length_m"),
+        ] {
+            let e = body.validate().expect_err("refused").to_string();
+            assert!(e.starts_with(name) && e.contains("m"), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_tool_and_a_straight_tool_s_flange_are_spin_invariant() {
+        let body = BodyParams::default();
+        let straight = spin_invariant_capsules(&Isometry3::translation(0.0, 0.0, 0.15), &body);
+        assert_eq!(straight.iter().map(|c| c.link).collect::<Vec<_>>(), [Link::Tool, Link::Flange]);
+        // the flange's face 150 mm behind the tip, its back 10 mm farther
+        assert!((straight[1].a - Point3::new(0.0, 0.0, -0.15)).norm() < 1e-15);
+        assert!((straight[1].b - Point3::new(0.0, 0.0, -0.16)).norm() < 1e-15);
+        let offset = spin_invariant_capsules(&Isometry3::translation(0.03, 0.0, 0.15), &body);
+        assert_eq!(offset.iter().map(|c| c.link).collect::<Vec<_>>(), [Link::Tool]);
+    }
 }

@@ -267,7 +267,7 @@ pub fn check_path(arm: &Arm, poses: &[Isometry3<f64>], start: &IkSolution, param
                 )
             })?;
             let fail = |kind| LineFailure { segment, s, distance_m: travelled + length * s, kind };
-            let (raw, refused) = ik::raw_solutions(arm, &pose, prev[5])?;
+            let (raw, refused) = ik::raw_solutions_of(arm, &pose, prev[5], Some(start.branch))?;
             let Some(r) = raw.iter().find(|r| r.branch == start.branch) else {
                 let why = refused.iter().find(|f| f.branch.is_none_or(|b| b == start.branch)).map_or_else(
                     || "no solution of this configuration".to_string(),
@@ -357,6 +357,14 @@ pub struct SpinSearch {
     pub failures: Vec<(f64, Option<Branch>, String)>,
     /// Candidates whose path passed (before any `accept` of [`best_spin_with`]).
     pub passed: usize,
+    /// Poses solved by [`ik::inverse`] (the three stroke poses of each spin tried, fewer when
+    /// one has no solution): the cheap checks' work.
+    pub ik_poses: usize,
+    /// Candidates whose path was stepped by [`check_path`]: those with a solution of their
+    /// configuration at all three poses.
+    pub paths_checked: usize,
+    /// Candidates given to `accept`.
+    pub accept_calls: usize,
 }
 
 impl SpinSearch {
@@ -405,7 +413,11 @@ fn spins(params: &SpinParams) -> Result<Vec<f64>> {
 /// [`crate::pierce::tool_poses`]) and the tool on the flange (`ee_from_tool`, `T_ee_tool`): the spin
 /// about the tool axis and the configuration whose approach -> pierce -> retract path passes with
 /// the best [`Margins::score`] (the largest worst margin along it). Every spin and every
-/// configuration at the approach is tried.
+/// configuration at the approach is tried, the cheap checks first: per spin the inverse
+/// kinematics of the three poses (a spin with a pose without any solution fails there, no path
+/// stepped), per configuration its solution at the pierce and retract poses (one refused there,
+/// out of reach, singular or outside the limits, fails without stepping: its path would pass
+/// through that pose), then the path every `line.step_m` ([`check_path`]).
 ///
 /// # Errors
 /// As [`check_path`] and [`ik::inverse`]; [`Error::Invalid`] for a non-finite fixed spin or a zero
@@ -439,18 +451,46 @@ pub fn best_spin_with(
     accept: &mut dyn FnMut(&SpinChoice) -> Result<Option<String>>,
 ) -> Result<SpinSearch> {
     let tool_from_ee = ee_from_tool.inverse();
-    let mut search = SpinSearch { best: None, failures: Vec::new(), passed: 0 };
+    let mut search =
+        SpinSearch { best: None, failures: Vec::new(), passed: 0, ik_poses: 0, paths_checked: 0, accept_calls: 0 };
     let mut passed: Vec<SpinChoice> = Vec::new();
-    for s in spins(spin)? {
+    'spins: for s in spins(spin)? {
         let rz =
             Isometry3::from_parts(Translation3::identity(), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), s));
         let flange_poses = [tool.approach, tool.pierce, tool.retract].map(|t| t * rz * tool_from_ee);
-        let starts = ik::inverse(arm, &flange_poses[0], &line.ik)?;
-        if starts.solutions.is_empty() {
-            search.failures.push((s, None, format!("approach (spin {:.0} deg): {}", s.to_degrees(), starts.reason())));
-            continue;
+        let mut at_poses: Vec<ik::IkSolutions> = Vec::with_capacity(3);
+        for (name, pose) in ["approach", "pierce", "retract"].iter().zip(&flange_poses) {
+            let solved = ik::inverse(arm, pose, &line.ik)?;
+            search.ik_poses += 1;
+            if solved.solutions.is_empty() {
+                search.failures.push((
+                    s,
+                    None,
+                    format!("{name} (spin {:.0} deg): {}", s.to_degrees(), solved.reason()),
+                ));
+                continue 'spins;
+            }
+            at_poses.push(solved);
         }
-        for start in &starts.solutions {
+        'starts: for start in &at_poses[0].solutions {
+            for (name, solved) in ["pierce", "retract"].iter().zip(&at_poses[1..]) {
+                // refused there (the whole pose, or this configuration): the path through it fails.
+                // A limit is certain only away from the wrist singularity, where joint 6 is not
+                // free (it is then chosen differently here and along the path)
+                let certain = |r: &&ik::Refusal| {
+                    r.branch.is_none_or(|b| b == start.branch)
+                        && (line.ik.min_wrist > 0.0 || !matches!(r.reason, Reason::JointLimit { .. }))
+                };
+                if let Some(r) = solved.refused.iter().find(certain) {
+                    search.failures.push((
+                        s,
+                        Some(start.branch),
+                        format!("{} (spin {:.0} deg): at the {name} pose: {}", start.branch, s.to_degrees(), r.reason),
+                    ));
+                    continue 'starts;
+                }
+            }
+            search.paths_checked += 1;
             let report = check_path(arm, &flange_poses, start, line)?;
             if let Some(f) = &report.failure {
                 search.failures.push((
@@ -471,6 +511,7 @@ pub fn best_spin_with(
         other(a).cmp(&other(b)).then(b.score.total_cmp(&a.score))
     });
     for choice in passed {
+        search.accept_calls += 1;
         match accept(&choice)? {
             None => {
                 search.best = Some(choice);

@@ -23,7 +23,7 @@ pub mod line;
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 use crate::error::{Error, Result};
 
@@ -163,6 +163,23 @@ impl Arm {
         frames
     }
 
+    /// The centre of [`Self::reach_bound_m`]: `(0, 0, d1)`, base frame, metres (joint 2's height on
+    /// joint 1's axis for UR and Techman arms).
+    pub fn shoulder(&self) -> Point3<f64> {
+        Point3::new(0.0, 0.0, self.dh[0].d)
+    }
+
+    /// A distance from [`Self::shoulder`] no joint values put the flange's origin beyond, metres:
+    /// `|a1|`, plus `sqrt(a_i^2 + d_i^2)` of rows 2 to 6 (each row moves the frame's origin by
+    /// `d_i` along one axis and `a_i` along a perpendicular one), plus `T_dh6_flange`'s offset.
+    /// Larger than the reach the vendors state (it ignores the links' directions): a pose beyond
+    /// it is out of reach for certain.
+    pub fn reach_bound_m(&self) -> f64 {
+        self.dh[0].a.abs()
+            + self.dh[1..].iter().map(|j| j.a.hypot(j.d)).sum::<f64>()
+            + self.dh6_from_flange.translation.vector.norm()
+    }
+
     /// The smallest distance of `q` to a joint limit, radians (negative when outside one).
     pub fn limit_margin_rad(&self, q: &Joints) -> f64 {
         q.iter().zip(&self.limits).map(|(v, [lo, hi])| (v - lo).min(hi - v)).fold(f64::INFINITY, f64::min)
@@ -194,6 +211,38 @@ mod tests {
         assert_eq!(snap_right_angle(written), FRAC_PI_2);
         assert_eq!(snap_right_angle(-written), -FRAC_PI_2);
         assert_eq!(snap_right_angle(0.3), 0.3);
+    }
+
+    #[test]
+    fn no_joint_values_put_the_flange_beyond_the_reach_bound() {
+        for name in arms::KNOWN {
+            let arm = Arm::by_name(name).expect(name);
+            let bound = arm.reach_bound_m();
+            let mut farthest: f64 = 0.0;
+            // a deterministic sweep: joints 2 to 4 over a grid, the wrist stretched and folded
+            for i in 0..24 {
+                for j in 0..24 {
+                    for k in 0..8 {
+                        let q = [
+                            0.3,
+                            f64::from(i) * PI / 12.0,
+                            f64::from(j) * PI / 12.0 - PI,
+                            f64::from(k) * PI / 4.0,
+                            1.0,
+                            0.2,
+                        ];
+                        farthest =
+                            farthest.max((arm.base_from_flange(&q).translation.vector - arm.shoulder().coords).norm());
+                    }
+                }
+            }
+            assert!(farthest <= bound + 1e-12, "{name}: {farthest} > {bound}");
+            // and the bound is not loose by more than the wrist offsets (d4, d5, d6 at most)
+            let wrist: f64 = arm.dh[3..].iter().map(|j| j.d.abs()).sum();
+            assert!(bound - farthest < wrist, "{name}: {farthest} vs {bound}");
+        }
+        // UR5e: 0.425 + 0.3922 + 0.1333 + 0.0997 + 0.0996 m
+        assert!((Arm::by_name("ur5e").expect("ur5e").reach_bound_m() - 1.1498).abs() < 1e-12);
     }
 
     #[test]

@@ -19,7 +19,9 @@ pub mod verify;
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
 pub use plan::{AxisChoice, MIN_SHOT_FITNESS, PierceParams, PiercePlan, PlannedTarget, plan};
 pub use predict::{PredictParams, Prediction, Tolerance};
-pub use reach::{PathJoints, ReachParams, ReachSetup, TargetReach, plan_reach, reach_target, shot_joints};
+pub use reach::{
+    PathJoints, ReachParams, ReachSetup, ReachWork, TargetReach, plan_reach, plan_reach_with, reach_target, shot_joints,
+};
 pub use safety::check_for_robot;
 pub use script::{
     ProgramPlan, ProgramTarget, ScriptSpeeds, program_text, techman_packets, techman_packets_of, tmsct_packet,

@@ -13,7 +13,9 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
-use crate::kinematics::collision::{BodyParams, Clearance, CollisionParams, Obstacles};
+use crate::kinematics::collision::{
+    BodyParams, Clearance, Collision, CollisionParams, Link, MAX_TOOL_LENGTH_M, Obstacles, spin_invariant_capsules,
+};
 use crate::kinematics::{
     Arm, Branch, IkParams, Joints, LineParams, Margins, SpinParams, best_spin_with, ik, wrap_to_pi,
 };
@@ -105,6 +107,22 @@ pub struct TargetReach {
     pub clearance: Option<Clearance>,
     /// Candidates (spin x configuration) whose path passed the kinematic checks.
     pub candidates_passed: usize,
+    /// The work the search took.
+    pub work: ReachWork,
+}
+
+/// The work of one target's reach search, in counts (what the cheap-first order saves).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ReachWork {
+    /// Poses solved by inverse kinematics (the three stroke poses of each spin tried, fewer when
+    /// one has no solution; none when the reach bound refused the target).
+    pub ik_poses: usize,
+    /// Candidates (spin x configuration) whose path was stepped every `line.step_m`.
+    pub paths_checked: usize,
+    /// Candidates whose path was checked for collisions point by point.
+    pub collision_paths: usize,
+    /// Path points whose capsules were checked for collisions (the spin-invariant check's included).
+    pub collision_points: usize,
 }
 
 impl PlannedTarget {
@@ -152,6 +170,16 @@ pub fn branch_of(arm: &Arm, q: &Joints) -> Result<Option<Branch>> {
 
 /// The reach of one target (tool poses `tool`, surface point `target`, both base frame).
 ///
+/// The checks run cheapest first and the search stops when its answer is certain: a tool point
+/// beyond [`Arm::reach_bound_m`] (plus the flange-to-TCP distance) from the shoulder refuses the
+/// target with no inverse kinematics; then per spin the three stroke poses' inverse kinematics,
+/// per configuration its solutions there, the paths every `line.step_m`
+/// ([`best_spin_with`]); collisions last: each candidate in order of preference, stopped at its
+/// first collision. A collision of a capsule on the tool axis (the tool's, the flange's for a
+/// straight tool: [`spin_invariant_capsules`], where every spin and configuration puts them)
+/// refuses every other candidate whose path is stepped alike without its own check. A reachable
+/// target's choice, joints, margins and clearance are those of checking everything.
+///
 /// # Errors
 /// As [`best_spin_with`].
 #[allow(clippy::too_many_arguments)]
@@ -165,29 +193,48 @@ pub fn reach_target(
     prefer: Option<Branch>,
     params: &ReachParams,
 ) -> Result<TargetReach> {
+    let mut work = ReachWork::default();
+    if let Some(reason) = beyond_reach_bound(arm, ee_from_tool, tool) {
+        return Ok(unreachable(reason, 0, work));
+    }
     let mut line = params.line;
     line.ik.reference = reference_q.or(line.ik.reference);
     let mut clearance: Option<Clearance> = None;
+    // a collision of a capsule on the tool axis (spin_invariant_capsules) is where every spin and
+    // configuration puts it, at the same points of paths stepped alike (paths of different spins
+    // may differ by a step where a segment is a whole number of steps long): those refused at once
+    let invariant: Vec<Link> =
+        if tool.approach.rotation == tool.pierce.rotation && tool.approach.rotation == tool.retract.rotation {
+            spin_invariant_capsules(ee_from_tool, &params.body).iter().map(|c| c.link).collect()
+        } else {
+            Vec::new()
+        };
+    let mut on_axis: Vec<([usize; 2], Collision)> = Vec::new();
+    let whatever = |c: &Collision| format!("{c}, whatever the spin and configuration");
     let mut accept = |choice: &crate::kinematics::SpinChoice| -> Result<Option<String>> {
         let Some(obstacles) = obstacles else { return Ok(None) };
-        let check = obstacles.check_path(arm, &choice.report, ee_from_tool, &params.body, target, &params.collision);
+        let steps = segment_steps(&choice.report);
+        if let Some((_, c)) = on_axis.iter().find(|(s, _)| *s == steps) {
+            return Ok(Some(whatever(c)));
+        }
+        work.collision_paths += 1;
+        let check =
+            obstacles.first_collision(arm, &choice.report, ee_from_tool, &params.body, target, &params.collision);
+        work.collision_points += check.samples_checked;
         clearance = check.min;
-        Ok(check.collision.map(|c| c.to_string()))
+        let Some(c) = check.collision else { return Ok(None) };
+        // 1e-9 m inside the minimum: beyond the rounding of the other paths' forward kinematics
+        if invariant.contains(&c.clearance.link) && c.clearance.distance_m < params.collision.min_clearance_m - 1e-9 {
+            on_axis.push((steps, c));
+            return Ok(Some(whatever(&c)));
+        }
+        Ok(Some(c.to_string()))
     };
     let search = best_spin_with(arm, tool, ee_from_tool, &line, &params.spin, prefer, &mut accept)?;
+    work.ik_poses = search.ik_poses;
+    work.paths_checked = search.paths_checked;
     let Some(best) = search.best else {
-        return Ok(TargetReach {
-            reachable: false,
-            reason: search.reason(),
-            spin_rad: 0.0,
-            branch: None,
-            joints: None,
-            tool_poses: None,
-            flange_poses: None,
-            margins: None,
-            clearance: None,
-            candidates_passed: search.passed,
-        });
+        return Ok(unreachable(search.reason(), search.passed, work));
     };
     let q = best.report.joints_at_poses();
     let joints = (q.len() == 3).then(|| PathJoints { approach: q[0], pierce: q[1], retract: q[2] });
@@ -210,7 +257,52 @@ pub fn reach_target(
         margins: Some(best.report.min),
         clearance: if obstacles.is_some() { clearance } else { None },
         candidates_passed: search.passed,
+        work,
     })
+}
+
+fn unreachable(reason: String, candidates_passed: usize, work: ReachWork) -> TargetReach {
+    TargetReach {
+        reachable: false,
+        reason,
+        spin_rad: 0.0,
+        branch: None,
+        joints: None,
+        tool_poses: None,
+        flange_poses: None,
+        margins: None,
+        clearance: None,
+        candidates_passed,
+        work,
+    }
+}
+
+/// Why no spin and configuration can reach a tool pose: one of the three tool points farther from
+/// the shoulder than [`Arm::reach_bound_m`] plus the flange-to-TCP distance (1e-9 m slack).
+fn beyond_reach_bound(arm: &Arm, ee_from_tool: &Isometry3<f64>, tool: &ToolPoses) -> Option<String> {
+    let bound = arm.reach_bound_m() + ee_from_tool.translation.vector.norm();
+    let shoulder = arm.shoulder();
+    for (name, pose) in [("approach", &tool.approach), ("pierce", &tool.pierce), ("retract", &tool.retract)] {
+        let d = (Point3::from(pose.translation.vector) - shoulder).norm();
+        if !(d <= bound + 1e-9) {
+            return Some(format!(
+                "out of reach: the {name} pose's tool point is {d:.3} m from the arm's shoulder, beyond the {bound:.3} m \
+                 no configuration and spin reaches with this tool"
+            ));
+        }
+    }
+    None
+}
+
+/// A passed path's steps per segment (its points after the start).
+fn segment_steps(report: &crate::kinematics::LineReport) -> [usize; 2] {
+    let mut steps = [0; 2];
+    for p in report.samples.iter().skip(1) {
+        if let Some(n) = steps.get_mut(p.segment) {
+            *n += 1;
+        }
+    }
+    steps
 }
 
 /// Checks every target of `plan` for `arm` with the tool at `ee_from_tool` (`T_ee_tool`) against
@@ -220,8 +312,8 @@ pub fn reach_target(
 /// when it has one, else `params.body.ee_from_camera`.
 ///
 /// # Errors
-/// [`Error::Invalid`] for bad parameters, a non-finite `T_ee_tool` or reference; as
-/// [`reach_target`].
+/// [`Error::Invalid`] for bad parameters, a non-finite `T_ee_tool` or one whose TCP is more than
+/// [`MAX_TOOL_LENGTH_M`] (1 m) from the flange, a non-finite reference; as [`reach_target`].
 pub fn plan_reach(
     plan: &mut PiercePlan,
     arm: &Arm,
@@ -230,6 +322,25 @@ pub fn plan_reach(
     floor: Option<FloorPlane>,
     reference_q: Option<Joints>,
     params: &ReachParams,
+) -> Result<()> {
+    plan_reach_with(plan, arm, ee_from_tool, model, floor, reference_q, params, &|_, _| {})
+}
+
+/// [`plan_reach`], calling `progress(done, total)` (targets, the first call with `done` 0) after
+/// each target's reach is known: what a progress display follows.
+///
+/// # Errors
+/// As [`plan_reach`].
+#[allow(clippy::too_many_arguments)]
+pub fn plan_reach_with(
+    plan: &mut PiercePlan,
+    arm: &Arm,
+    ee_from_tool: &Isometry3<f64>,
+    model: &PointCloud,
+    floor: Option<FloorPlane>,
+    reference_q: Option<Joints>,
+    params: &ReachParams,
+    progress: &dyn Fn(usize, usize),
 ) -> Result<()> {
     params.body.validate()?;
     params.collision.validate()?;
@@ -243,6 +354,15 @@ pub fn plan_reach(
     if !(t.iter().all(|v| v.is_finite()) && ee_from_tool.rotation.coords.iter().all(|v| v.is_finite())) {
         return Err(Error::invalid("T_ee_tool", "must be finite"));
     }
+    if t.norm() > MAX_TOOL_LENGTH_M {
+        return Err(Error::invalid(
+            "T_ee_tool",
+            format!(
+                "puts the tool centre point {:.3} m from the flange, more than a piercing tool's {MAX_TOOL_LENGTH_M} m",
+                t.norm()
+            ),
+        ));
+    }
     let mut params = *params;
     if let Some(h) = &plan.located.hand_eye {
         params.body.ee_from_camera = Some(h.ee_from_camera);
@@ -253,9 +373,12 @@ pub fn plan_reach(
     };
     let coarse = downsample(model, &VoxelParams { voxel_size_m: params.model_voxel_m })?;
     let obstacles = Obstacles::new(&coarse.points, floor, &plan.located.base_from_model)?;
-    for t in &mut plan.targets {
+    let total = plan.targets.len();
+    progress(0, total);
+    for (i, t) in plan.targets.iter_mut().enumerate() {
         let r = reach_target(arm, ee_from_tool, &t.poses, &t.p_base, Some(&obstacles), reference_q, prefer, &params)?;
         t.reach = Some(r);
+        progress(i + 1, total);
     }
     plan.reach = Some(ReachSetup {
         arm: arm.name.clone(),
@@ -267,4 +390,152 @@ pub fn plan_reach(
         floor: obstacles.floor().is_some(),
     });
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kinematics::{SpinChoice, check_path};
+    use crate::pierce::{Stroke, tool_poses};
+
+    /// A square plate of points, `half` metres half-width every `step`, at height `z` about (`cx`, `cy`).
+    fn plate(cx: f64, cy: f64, z: f64, half: f64, step: f64) -> Vec<Point3<f32>> {
+        let n = (half / step).round() as i32;
+        let mut out = Vec::new();
+        for i in -n..=n {
+            for j in -n..=n {
+                out.push(Point3::new((cx + f64::from(i) * step) as f32, (cy + f64::from(j) * step) as f32, z as f32));
+            }
+        }
+        out
+    }
+
+    /// UR5e, a 150 mm straight tool, the default stroke pointing down at `p`.
+    fn setup(p: [f64; 3]) -> (Arm, Isometry3<f64>, Point3<f64>, ToolPoses, ReachParams) {
+        let arm = Arm::by_name("ur5e").expect("ur5e");
+        let ee_from_tool = Isometry3::translation(0.0, 0.0, 0.15);
+        let target = Point3::from(Vector3::from(p));
+        let poses = tool_poses(&target, &-Vector3::z(), &Stroke::default()).expect("poses");
+        let mut params = ReachParams::default();
+        params.body.ee_from_camera = Some(Isometry3::translation(0.0, 0.07, 0.03));
+        (arm, ee_from_tool, target, poses, params)
+    }
+
+    #[test]
+    fn out_of_reach_targets_are_refused_with_their_reason_before_any_path() {
+        // 3 m out: beyond the UR5e's bound (1.150 m + the 0.15 m tool) with no inverse kinematics
+        let (arm, ee_from_tool, target, poses, params) = setup([3.0, 0.0, 0.1]);
+        assert!((arm.reach_bound_m() - 1.1498).abs() < 1e-9, "{}", arm.reach_bound_m());
+        let obstacles = Obstacles::new(&plate(3.0, 0.0, 0.1, 0.1, 0.004), None, &Isometry3::identity()).expect("obst");
+        let r = reach_target(&arm, &ee_from_tool, &poses, &target, Some(&obstacles), None, None, &params).expect("r");
+        assert!(!r.reachable);
+        assert!(
+            r.reason.starts_with("out of reach: the approach pose's tool point is 3.000 m from the arm's shoulder")
+                && r.reason.contains("beyond the 1.300 m"),
+            "{}",
+            r.reason
+        );
+        assert_eq!(r.work, ReachWork::default(), "no IK, no path, no collision");
+
+        // 1.0 m out, 0.2 m up: inside the bound, beyond the arm (0.817 m from joint 2 to joint 4
+        // at most): every spin's approach has no solution: 36 poses solved, no path stepped
+        let (arm, ee_from_tool, target, poses, params) = setup([1.0, 0.0, 0.2]);
+        let obstacles = Obstacles::new(&plate(1.0, 0.0, 0.2, 0.1, 0.004), None, &Isometry3::identity()).expect("obst");
+        let r = reach_target(&arm, &ee_from_tool, &poses, &target, Some(&obstacles), None, None, &params).expect("r");
+        println!("1 m out: {} ({:?})", r.reason, r.work);
+        assert!(!r.reachable);
+        assert!(r.reason.starts_with("36 x out of reach: the wrist needs"), "{}", r.reason);
+        assert_eq!(r.work, ReachWork { ik_poses: 36, paths_checked: 0, collision_paths: 0, collision_points: 0 });
+        assert_eq!(r.candidates_passed, 0);
+    }
+
+    #[test]
+    fn a_tool_through_the_model_is_refused_once_for_every_candidate() {
+        // an overhang 50 mm above the target: the straight approach passes through it
+        let (arm, ee_from_tool, target, poses, params) = setup([0.45, 0.15, 0.10]);
+        let mut points = plate(0.45, 0.15, 0.10, 0.15, 0.004);
+        points.extend(plate(0.45, 0.15, 0.15, 0.10, 0.004));
+        let obstacles = Obstacles::new(&points, None, &Isometry3::identity()).expect("obstacles");
+        let r = reach_target(&arm, &ee_from_tool, &poses, &target, Some(&obstacles), None, None, &params).expect("r");
+        println!("overhang: {} ({:?}, {} passed)", r.reason, r.work, r.candidates_passed);
+        assert!(!r.reachable);
+        // the kinematics pass (36 spins x 8 configurations here), the tool collides at the overhang
+        assert_eq!(r.candidates_passed, 288);
+        assert!(
+            r.reason.starts_with("288 x collision: the tool is") && r.reason.contains("whatever the spin"),
+            "{}",
+            r.reason
+        );
+        // one candidate's path checked up to the overhang (the approach starts 100 mm above the
+        // target, the overhang 50 mm above: 2 mm steps) for each of the (at most two) steppings of
+        // the 110 mm approach -> pierce segment; the others refused by its tool collision
+        assert!(r.work.collision_paths <= 2, "{:?}", r.work);
+        assert!(r.work.collision_points <= 2 * 30, "{:?}", r.work);
+        assert_eq!(r.work.ik_poses, 3 * 36);
+        assert_eq!(r.work.paths_checked, 288);
+    }
+
+    /// The search before the cheap-first order: every spin's approach solved, every path stepped,
+    /// every candidate's whole path checked for collisions in order of preference.
+    fn check_everything(
+        arm: &Arm,
+        ee_from_tool: &Isometry3<f64>,
+        tool: &ToolPoses,
+        target: &Point3<f64>,
+        obstacles: &Obstacles,
+        params: &ReachParams,
+    ) -> (Option<SpinChoice>, Option<Clearance>, usize) {
+        let mut passed = Vec::new();
+        for k in 0..params.spin.count {
+            let step = 2.0 * std::f64::consts::PI / params.spin.count as f64;
+            let s = if k == 0 { 0.0 } else { step * k.div_ceil(2) as f64 * if k % 2 == 1 { 1.0 } else { -1.0 } };
+            let rz = Isometry3::rotation(Vector3::z() * s);
+            let flange = [tool.approach, tool.pierce, tool.retract].map(|t| t * rz * ee_from_tool.inverse());
+            for start in ik::inverse(arm, &flange[0], &params.line.ik).expect("ik").solutions {
+                let report = check_path(arm, &flange, &start, &params.line).expect("path");
+                if report.ok() {
+                    let score = report.min.score(&params.spin.scale);
+                    passed.push(SpinChoice { spin_rad: s, flange_poses: flange, start, report, score });
+                }
+            }
+        }
+        let n = passed.len();
+        passed.sort_by(|a, b| b.score.total_cmp(&a.score));
+        for c in passed {
+            let check = obstacles.check_path(arm, &c.report, ee_from_tool, &params.body, target, &params.collision);
+            if check.collision.is_none() {
+                return (Some(c), check.min, n);
+            }
+        }
+        (None, None, n)
+    }
+
+    #[test]
+    fn reachable_targets_get_the_choice_of_checking_everything() {
+        // a plate with a 120 mm wall 60 mm beside the target: the camera and wrist hit it at some
+        // spins, so the choice runs down the preference order
+        let (arm, ee_from_tool, target, poses, params) = setup([0.45, 0.15, 0.10]);
+        let mut points = plate(0.45, 0.15, 0.10, 0.15, 0.004);
+        for i in 0..=75 {
+            for k in 0..=30 {
+                let (y, z) = (0.15 - 0.15 + f64::from(i) * 0.004, 0.10 + f64::from(k) * 0.004);
+                points.push(Point3::new(0.51_f32, y as f32, z as f32));
+            }
+        }
+        let obstacles = Obstacles::new(&points, None, &Isometry3::identity()).expect("obstacles");
+        let r = reach_target(&arm, &ee_from_tool, &poses, &target, Some(&obstacles), None, None, &params).expect("r");
+        let (best, clearance, passed) = check_everything(&arm, &ee_from_tool, &poses, &target, &obstacles, &params);
+        let best = best.expect("reachable");
+        println!("wall: spin {:.0} deg {:?}, {:?}", r.spin_rad.to_degrees(), r.branch, r.work);
+        assert!(r.reachable, "{}", r.reason);
+        assert!(r.work.collision_paths > 1, "some candidates collide first: {:?}", r.work);
+        assert_eq!(r.spin_rad, wrap_to_pi(best.spin_rad));
+        assert_eq!(r.branch, Some(best.start.branch));
+        let j = r.joints.expect("joints");
+        let q = best.report.joints_at_poses();
+        assert_eq!([j.approach, j.pierce, j.retract].to_vec(), q);
+        assert_eq!(r.margins, Some(best.report.min));
+        assert_eq!(r.clearance, clearance);
+        assert_eq!(r.candidates_passed, passed);
+    }
 }
