@@ -21,6 +21,7 @@ use nalgebra::{Isometry3, Point3};
 
 use crate::error::{Error, Result};
 use crate::kinematics::Joints;
+use crate::kinematics::collision::MAX_TOOL_LENGTH_M;
 use crate::pierce::plan::PiercePlan;
 use crate::pierce::safety::check_for_robot;
 use crate::pierce::tool::{MAX_REACH_M, ToolPoses, tm_pose, ur_pose};
@@ -170,13 +171,13 @@ impl ProgramPlan {
 
     /// Checks every number a program would carry: poses finite, unit rotations, within
     /// [`MAX_REACH_M`] of the base; joints finite and within +-2 pi; `T_ee_tool` finite and within
-    /// [`MAX_TCP_M`] of the flange; `p_base` finite.
+    /// [`MAX_TOOL_LENGTH_M`] of the flange; `p_base` finite.
     ///
     /// # Errors
     /// [`Error::Invalid`] naming the target and the value.
     pub fn validate(&self) -> Result<()> {
         if let Some((_, tcp)) = &self.tcp {
-            check_pose("T_ee_tool", tcp, MAX_TCP_M)?;
+            check_pose("T_ee_tool", tcp, MAX_TOOL_LENGTH_M)?;
         }
         for (i, t) in self.targets.iter().enumerate() {
             let name = |what: &str| format!("targets[{i}] (`{}`).{what}", t.spec);
@@ -200,9 +201,6 @@ impl ProgramPlan {
         Ok(())
     }
 }
-
-/// How far the TCP may be from the flange, metres: a piercing tool a metre long at most.
-pub const MAX_TCP_M: f64 = 1.0;
 
 /// Refuses a pose that is not finite, whose rotation is not a unit quaternion, or whose origin is
 /// farther than `max_m` metres.
