@@ -114,10 +114,10 @@ pub struct RobotArgs {
     /// Keep this spin about the tool axis, degrees, instead of searching the spin with the most margin.
     #[arg(long, allow_hyphen_values = true)]
     pub fixed_spin: Option<f64>,
-    /// The tool's radius for the collision check, metres.
+    /// The tool's radius for the collision check, metres (at most 0.1).
     #[arg(long, default_value_t = 0.004)]
     pub tool_radius_m: f64,
-    /// The tool's length back from its tip, metres (default: the flange-to-TCP distance).
+    /// The tool's length back from its tip, metres (default: the flange-to-TCP distance; at most 1).
     #[arg(long)]
     pub tool_length_m: Option<f64>,
 }
