@@ -51,27 +51,42 @@ pub fn check_for_robot(plan: &PiercePlan) -> Result<()> {
         for (what, pose) in
             [("approach", &t.poses.approach), ("pierce", &t.poses.pierce), ("retract", &t.poses.retract)]
         {
-            if !finite_pose(pose) {
-                return Err(Error::invalid(name(what), "the tool pose is not finite"));
-            }
-            if (pose.rotation.coords.norm() - 1.0).abs() > 1e-6 {
-                return Err(Error::invalid(name(what), "the tool rotation is not a unit quaternion"));
-            }
-            let v = pose.translation.vector;
-            if v.norm() > MAX_REACH_M {
-                return Err(Error::invalid(
-                    name(what),
-                    format!(
-                        "the tool point ({:.3}, {:.3}, {:.3}) m is {:.3} m from the robot base, beyond an arm's \
-                         {MAX_REACH_M} m reach: bring the base closer or check the shot's poses",
-                        v.x,
-                        v.y,
-                        v.z,
-                        v.norm()
-                    ),
-                ));
-            }
+            check_pose(&name(what), pose, MAX_REACH_M, "the robot base", &arm_reach())?;
         }
+    }
+    Ok(())
+}
+
+/// The limit a tool point in the base frame is held to, for [`check_pose`], and what to do.
+pub(crate) fn arm_reach() -> String {
+    format!("an arm's {MAX_REACH_M} m reach: bring the base closer or check the shot's poses")
+}
+
+/// Refuses a tool pose `name` that is not finite, whose rotation is not a unit quaternion, or whose
+/// point is farther than `max_m` metres from `from` (the frame's origin), saying it is beyond
+/// `limit` (which names `max_m`).
+///
+/// # Errors
+/// [`Error::Invalid`] naming `name`.
+pub(crate) fn check_pose(name: &str, pose: &Isometry3<f64>, max_m: f64, from: &str, limit: &str) -> Result<()> {
+    if !finite_pose(pose) {
+        return Err(Error::invalid(name, "the tool pose is not finite"));
+    }
+    if (pose.rotation.coords.norm() - 1.0).abs() > 1e-6 {
+        return Err(Error::invalid(name, "the tool rotation is not a unit quaternion"));
+    }
+    let v = pose.translation.vector;
+    if v.norm() > max_m {
+        return Err(Error::invalid(
+            name,
+            format!(
+                "the tool point ({:.3}, {:.3}, {:.3}) m is {:.3} m from {from}, beyond {limit}",
+                v.x,
+                v.y,
+                v.z,
+                v.norm()
+            ),
+        ));
     }
     Ok(())
 }

@@ -23,7 +23,7 @@ use crate::error::{Error, Result};
 use crate::kinematics::Joints;
 use crate::kinematics::collision::MAX_TOOL_LENGTH_M;
 use crate::pierce::plan::PiercePlan;
-use crate::pierce::safety::check_for_robot;
+use crate::pierce::safety::{arm_reach, check_for_robot, check_pose};
 use crate::pierce::tool::{MAX_REACH_M, ToolPoses, tm_pose, ur_pose};
 
 /// Speeds of the generated program.
@@ -177,7 +177,13 @@ impl ProgramPlan {
     /// [`Error::Invalid`] naming the target and the value.
     pub fn validate(&self) -> Result<()> {
         if let Some((_, tcp)) = &self.tcp {
-            check_pose("T_ee_tool", tcp, MAX_TOOL_LENGTH_M)?;
+            check_pose(
+                "T_ee_tool",
+                tcp,
+                MAX_TOOL_LENGTH_M,
+                "the flange",
+                &format!("a piercing tool's {MAX_TOOL_LENGTH_M} m: check T_ee_tool"),
+            )?;
         }
         for (i, t) in self.targets.iter().enumerate() {
             let name = |what: &str| format!("targets[{i}] (`{}`).{what}", t.spec);
@@ -187,7 +193,7 @@ impl ProgramPlan {
             for (what, pose) in
                 [("approach", &t.poses.approach), ("pierce", &t.poses.pierce), ("retract", &t.poses.retract)]
             {
-                check_pose(&name(what), pose, MAX_REACH_M)?;
+                check_pose(&name(what), pose, MAX_REACH_M, "the robot base", &arm_reach())?;
             }
             if let Some(q) = &t.approach_q
                 && let Some(k) = q.iter().position(|v| !(v.is_finite() && v.abs() <= 2.0 * std::f64::consts::PI))
@@ -200,32 +206,6 @@ impl ProgramPlan {
         }
         Ok(())
     }
-}
-
-/// Refuses a pose that is not finite, whose rotation is not a unit quaternion, or whose origin is
-/// farther than `max_m` metres.
-fn check_pose(name: &str, pose: &Isometry3<f64>, max_m: f64) -> Result<()> {
-    let v = pose.translation.vector;
-    if !(v.iter().all(|x| x.is_finite()) && pose.rotation.coords.iter().all(|x| x.is_finite())) {
-        return Err(Error::invalid(name, "the pose is not finite"));
-    }
-    if (pose.rotation.coords.norm() - 1.0).abs() > 1e-6 {
-        return Err(Error::invalid(name, "the rotation is not a unit quaternion"));
-    }
-    if v.norm() > max_m {
-        return Err(Error::invalid(
-            name,
-            format!(
-                "the point ({:.3}, {:.3}, {:.3}) m is {:.3} m away, beyond {max_m} m: bring the base closer or check \
-                 the shot's poses",
-                v.x,
-                v.y,
-                v.z,
-                v.norm()
-            ),
-        ));
-    }
-    Ok(())
 }
 
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
