@@ -29,6 +29,7 @@ use crate::kinematics::{Arm, Joints};
 use crate::pierce::plan_file::PLAN_FORMAT;
 use crate::pierce::script::{ProgramPlan, ProgramTarget, ScriptSpeeds, techman_packets_of, urscript_of};
 use crate::pierce::tool::{Stroke, ToolPoses, tool_poses};
+use crate::transform::pose_difference;
 
 /// Two encodings of one pose agree within this, metres (the JSON numbers round-trip exactly: this
 /// only absorbs the arithmetic between encodings).
@@ -304,7 +305,7 @@ impl TargetReader<'_> {
             ("pierce", &poses.pierce, &made.pierce),
             ("retract", &poses.retract, &made.retract),
         ] {
-            let (dt, dr) = difference(found, expected);
+            let (dt, dr) = pose_difference(found, expected);
             if !(dt <= SAME_M && dr <= SAME_RAD) {
                 return Err(self.error(
                     what,
@@ -372,7 +373,7 @@ impl TargetReader<'_> {
             ("pierce", &poses.pierce, &tool.pierce, &flange.pierce),
             ("retract", &poses.retract, &tool.retract, &flange.retract),
         ] {
-            let (dt, dr) = difference(tool_pose, &(plan_pose * rz));
+            let (dt, dr) = pose_difference(tool_pose, &(plan_pose * rz));
             if !(dt <= SAME_M && dr <= SAME_RAD) {
                 return Err(self.error(
                     &format!("reach.tool.{what}"),
@@ -385,7 +386,7 @@ impl TargetReader<'_> {
                 (format!("reach.flange.{what}"), flange_pose, at),
                 (format!("reach.tool.{what}"), tool_pose, at * ee_from_tool),
             ] {
-                let (dt, dr) = difference(found, &expected);
+                let (dt, dr) = pose_difference(found, &expected);
                 if !(dt <= FK_M && dr <= FK_RAD) {
                     return Err(self.error(
                         &name,
@@ -404,9 +405,4 @@ impl TargetReader<'_> {
         }
         Ok(approach_q)
     }
-}
-
-/// The distance (metres) and rotation angle (radians) between two poses.
-fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
-    ((a.translation.vector - b.translation.vector).norm(), a.rotation.angle_to(&b.rotation))
 }
