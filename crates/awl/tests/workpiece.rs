@@ -404,3 +404,44 @@ fn snapped_normals_average_noise_on_gentle_curves_and_along_folds() {
         assert!(fold <= max_deg && fold < plane, "groove at x = {x}: {fold:.3} deg (plane {plane:.3})");
     }
 }
+
+#[test]
+fn normal_bounds_come_from_the_patch_and_cover_wavy_surfaces() {
+    use awl::pierce::predict::norm_quantile;
+    // an exact plate: the normal is exact and so is its bound (well under 0.01 deg)
+    let (cloud, world_from_plate) = plate();
+    let surface = SurfaceModel::new(&cloud).expect("surface");
+    let centre = world_from_plate * Point3::new(0.0, 0.0, 0.0);
+    let exact = surface.snap(&centre, &TargetParams::default()).expect("snap");
+    let exact_bound = norm_quantile(&exact.normal_covariance, 0.95).to_degrees();
+    assert!(exact_bound < 0.01, "exact plate: {exact_bound} deg");
+    // a wavy surface (two sines of 0.3 mm, 60 mm long, random phases) with 0.3 mm noise: the
+    // normal's error varies with the phase; its 95 % bound must hold for most of the targets
+    let (mut errors, mut bounds) = (Vec::new(), Vec::new());
+    for seed in 1..=12u64 {
+        let (p1, p2) = (seed as f64 * 1.7, seed as f64 * 2.9);
+        let k = std::f64::consts::TAU / 0.06;
+        let wavy = move |x: f64, y: f64| 0.0003 * ((k * x + p1).sin() + (k * y + p2).sin());
+        let cloud = noisy_surface(wavy, 0.07, 0.0003, seed);
+        let surface = SurfaceModel::new(&cloud).expect("surface");
+        for (x, y) in [(0.0, 0.0), (0.02, -0.01), (-0.015, 0.02)] {
+            let t = surface.snap(&Point3::new(x, y, wavy(x, y) + 0.002), &TargetParams::default()).expect("snap");
+            errors.push(t.normal.angle(&height_normal(&wavy, t.point.x, t.point.y)).to_degrees());
+            bounds.push(norm_quantile(&t.normal_covariance, 0.95).to_degrees());
+        }
+    }
+    let covered = errors.iter().zip(&bounds).filter(|(e, b)| e <= b).count() as f64 / errors.len() as f64;
+    let median = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (me, mb) = (median(&errors), median(&bounds));
+    println!(
+        "wavy: {} targets, bound covers {:.0} %, median error {me:.3} deg, median bound {mb:.3} deg",
+        errors.len(),
+        covered * 1e2
+    );
+    assert!(covered >= 0.9, "covered {covered}");
+    assert!(mb < 8.0 * me, "the bound is too loose to be useful: {mb} vs {me}");
+}

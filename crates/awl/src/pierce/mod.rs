@@ -17,7 +17,7 @@ pub mod tool;
 pub mod verify;
 
 pub use locate::{HandEyePrior, LocateParams, Located, ShotHandEye, ShotRefineParams, ShotRefinement, locate};
-pub use plan::{AxisChoice, MIN_SHOT_FITNESS, PierceParams, PiercePlan, PlannedTarget, plan};
+pub use plan::{AxisChoice, MIN_SHOT_FITNESS, PierceParams, PiercePlan, PlannedTarget, plan, target_geometry};
 pub use predict::{PredictParams, Prediction, Tolerance};
 pub use reach::{
     PathJoints, ReachParams, ReachSetup, ReachWork, TargetReach, plan_reach, plan_reach_with, reach_target, shot_joints,

@@ -105,6 +105,21 @@ fn location_refusal(located: &Located, min_fitness: f64) -> Option<String> {
     })
 }
 
+/// What [`predict`] needs of a target placed on the model, piercing along `axis_base`.
+pub fn target_geometry(surface: &SurfaceTarget, axis_base: &Vector3<f64>, params: &PierceParams) -> TargetGeometry {
+    TargetGeometry {
+        p_model: surface.point,
+        normal_model: surface.normal,
+        axis_base: *axis_base,
+        face_centre: surface.corners.is_some(),
+        normal_covariance_model: match params.axis {
+            AxisChoice::Normal => surface.normal_covariance,
+            AxisChoice::Tag => nalgebra::Matrix3::identity() * params.predict.axis_sigma_rad.powi(2),
+        },
+        model_disagreement_m: params.model_disagreement_m,
+    }
+}
+
 /// One target of the plan.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PlannedTarget {
@@ -231,13 +246,7 @@ pub fn plan(
                 ));
             }
             let poses = tool_poses(&p_base, &axis_base, &params.stroke)?;
-            let geometry = TargetGeometry {
-                p_model: surface.point,
-                normal_model: surface.normal,
-                axis_base,
-                face_centre: surface.corners.is_some(),
-                model_disagreement_m: params.model_disagreement_m,
-            };
+            let geometry = target_geometry(&surface, &axis_base, params);
             let prediction = predict(&base_from_model, &located.base_from_model_covariance, &geometry, &params.predict);
             let refusal: Vec<String> =
                 no_location.iter().cloned().chain(params.tolerance.refusal(&prediction)).collect();

@@ -9,7 +9,9 @@
 //!   ([`PredictParams::face_centre_sigma_m`]).
 //!
 //! The tool axis errs by the located rotation (about the axes across it) and by the model's normal
-//! ([`PredictParams::axis_sigma_rad`]). Each bound is the norm's quantile at
+//! there: [`TargetGeometry::normal_covariance_model`], from the scatter and extent of the patch that
+//! gave it ([`crate::workpiece::SurfaceTarget::normal_covariance`]); along the tag's axis, by
+//! [`PredictParams::axis_sigma_rad`]. Each bound is the norm's quantile at
 //! [`PredictParams::confidence`] under that Gaussian (the covariance's eigenvalues, a fixed table of
 //! seeded standard-normal draws: deterministic). The defaults are calibrated in BENCHMARKS.md.
 
@@ -32,7 +34,8 @@ pub struct PredictParams {
     pub model_sigma_m: f64,
     /// A face centre's error in the face plane, 1-sigma per in-plane axis, metres.
     pub face_centre_sigma_m: f64,
-    /// The model's normal (or tag axis) error, 1-sigma about each axis across it, radians.
+    /// The tag axis' error on the model, 1-sigma about each axis across it, radians (the axis
+    /// `tag`; a surface normal's error comes from its patch).
     pub axis_sigma_rad: f64,
     /// The probability a bound holds (0.95: a 95 % bound).
     pub confidence: f64,
@@ -95,6 +98,10 @@ pub struct TargetGeometry {
     pub axis_base: Vector3<f64>,
     /// Whether it is a face centre (its in-plane position is estimated).
     pub face_centre: bool,
+    /// The axis' error on the model as a rotation vector across it, model frame, rad²: the surface
+    /// normal's ([`crate::workpiece::SurfaceTarget::normal_covariance`]) or, for the tag's axis,
+    /// [`PredictParams::axis_sigma_rad`] about both axes across it.
+    pub normal_covariance_model: Matrix3<f64>,
     /// How far apart the fuse found parts of the model (`hand_eye.rejected_disagreement_mm` of
     /// workpiece.json), metres: half of it is added as an isotropic 1-sigma (0: none).
     pub model_disagreement_m: f64,
@@ -122,7 +129,9 @@ pub fn predict(
     let a = target.axis_base;
     let across_axis = Matrix3::identity() - a * a.transpose();
     let omega = covariance.fixed_view::<3, 3>(0, 0).into_owned();
-    let axis_covariance = across_axis * omega * across_axis.transpose() + across_axis * params.axis_sigma_rad.powi(2);
+    let r = base_from_model.rotation.to_rotation_matrix().into_inner();
+    let normal = r * target.normal_covariance_model * r.transpose();
+    let axis_covariance = across_axis * (omega + normal) * across_axis.transpose();
     Prediction {
         position_covariance,
         axis_covariance,
@@ -249,6 +258,7 @@ mod tests {
             normal_model: Vector3::z(),
             axis_base: -Vector3::z(),
             face_centre: false,
+            normal_covariance_model: Matrix3::identity() * PredictParams::default().axis_sigma_rad.powi(2),
             model_disagreement_m: 0.0,
         };
         let near = predict(&Isometry3::identity(), &c, &target(0.1), &params);

@@ -29,7 +29,7 @@ use crate::cluster::{DbscanParams, dbscan};
 use crate::error::{Error, Result};
 use crate::segment::{PlaneParams, fit_plane_ransac};
 use crate::workpiece::target_spec::TargetSpec;
-use crate::workpiece::targets::{SurfaceModel, SurfaceTarget, TargetParams};
+use crate::workpiece::targets::{SurfaceModel, SurfaceTarget, TargetParams, tilt_covariance};
 
 /// Parameters of face extraction.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -338,6 +338,11 @@ impl SurfaceModel<'_> {
         let rect = [corner(lu, lv), corner(hu, lv), corner(hu, hv), corner(lu, hv)];
         let corners = rect.map(|q| Point3::from(c + u * q.x + v * q.y));
         let centre = Point3::from(corners.iter().map(|x| x.coords).sum::<Vector3<f64>>() / 4.0);
+        let second = flat.iter().fold(nalgebra::Matrix3::zeros(), |m, q| {
+            let d = u * q.x + v * q.y;
+            m + d * d.transpose()
+        }) / flat.len().max(1) as f64;
+        let normal_covariance = tilt_covariance(&refit, &second, fit_rms_m);
         Ok(SurfaceTarget {
             spec: TargetSpec::FaceCentre(*p),
             point: centre,
@@ -345,6 +350,7 @@ impl SurfaceModel<'_> {
             axis: -refit,
             fit_rms_m,
             points: face.len(),
+            normal_covariance,
             corners: Some(corners),
             angle_to_tag_z_rad: None,
         })

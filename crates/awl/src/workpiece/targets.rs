@@ -28,6 +28,12 @@
 //!   simulator's groove by 3.7.
 //! - without a quadric (too few points), the plane over `normal_radius_m`.
 //!
+//! The normal's error ([`SurfaceTarget::normal_covariance`]) comes from the patch that gave it: a
+//! model surface whose points scatter `s` (weighted rms) about the quadric fitted over the patch is
+//! wavy by about that much at the patch's scale, and a patch `l` wide (weighted rms extent along a
+//! tangent direction) tilts by about `s / l` that way. The 1-sigma tilt per tangent direction is
+//! [`TILT_PER_SCATTER`] `* s / l`; a face centre's uses the face's plane residual and extents.
+//!
 //! Normals are oriented like the model's own normals there (the fuse pipeline orients them toward
 //! the cameras that saw the surface, i.e. outward); a model without normals orients it away from
 //! the model's centroid.
@@ -42,6 +48,92 @@ use crate::smooth::{quadric_coefficients, quadric_normal, tangent_frame};
 use crate::spatial::KdIndex;
 use crate::workpiece::face::FaceParams;
 use crate::workpiece::target_spec::TargetSpec;
+
+/// A patch's normal tilts by this many times the scatter of its points about their fitted surface
+/// over the patch's extent, 1-sigma per tangent direction (module docs). Measured on 600 targets on
+/// the other simulator's three fused models, against their CAD: the error over `s / l` (`l` the
+/// patch's radial rms extent) was at most 0.93-1.16 at the 95th percentile; with 0.35 per direction
+/// (`l / sqrt(2)` each) the 2-D 95 % bound is 1.22 `s / l` (BENCHMARKS.md, "Normal bounds").
+pub const TILT_PER_SCATTER: f64 = 0.35;
+
+/// The points a normal was fitted to: offsets from the target and weights, and whether a cubic
+/// (not a quadric) height field gave it.
+struct Patch {
+    points: Vec<(Vector3<f64>, f64)>,
+    cubic: bool,
+}
+
+/// The height field's terms at `(x, y)`: a quadric's 6, then a cubic's 4 more.
+fn monomials(x: f64, y: f64) -> SVector<f64, 10> {
+    SVector::<f64, 10>::from([1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y, x * y * y, y * y * y])
+}
+
+/// The covariance of a normal's tilt (rotation vector across `n`, rad²) from its patch: the height
+/// field it was fitted with (a quadric or a cubic) over the patch in `n`'s frame gives the scatter
+/// `s`, the patch's weighted second moment across `n` the extent `l` per direction
+/// ([`TILT_PER_SCATTER`]). Infinite along a direction the patch does not extend in.
+fn patch_tilt(patch: &Patch, n: &Vector3<f64>) -> Matrix3<f64> {
+    let unbounded = Matrix3::from_diagonal_element(f64::INFINITY);
+    let points = &patch.points;
+    let terms = if patch.cubic { 10 } else { 6 };
+    let sw: f64 = points.iter().map(|(_, w)| w).sum();
+    if points.len() < 2 * terms || !(sw > 0.0) {
+        return unbounded;
+    }
+    let (u, v) = tangent_frame(n);
+    let (mut ata, mut atb) = (SMatrix::<f64, 10, 10>::zeros(), SVector::<f64, 10>::zeros());
+    for (d, w) in points {
+        let m = monomials(d.dot(&u), d.dot(&v));
+        ata += m * m.transpose() * *w;
+        atb += m * (w * d.dot(n));
+    }
+    // the unused cubic terms pinned to 0, and a tiny ridge: a patch too thin for the height field
+    // still gives its plane's residual
+    let ridge = 1e-12 * (0..10).map(|k| ata[(k, k)]).fold(0.0, f64::max);
+    for k in 0..10 {
+        if k < terms {
+            ata[(k, k)] += ridge;
+        } else {
+            ata.row_mut(k).fill(0.0);
+            ata.column_mut(k).fill(0.0);
+            (ata[(k, k)], atb[k]) = (1.0, 0.0);
+        }
+    }
+    let Some(c) = ata.cholesky().map(|ch| ch.solve(&atb)) else { return unbounded };
+    let mut sum_r2 = 0.0;
+    let mut mean = Vector3::zeros();
+    for (d, w) in points {
+        let r = d.dot(n) - monomials(d.dot(&u), d.dot(&v)).dot(&c);
+        sum_r2 += w * r * r;
+        mean += d * *w;
+    }
+    let (scatter, mean) = ((sum_r2 / sw).sqrt(), mean / sw);
+    let across = Matrix3::identity() - n * n.transpose();
+    let second = points.iter().fold(Matrix3::zeros(), |m, (d, w)| {
+        let t = across * (d - mean);
+        m + t * t.transpose() * *w
+    }) / sw;
+    tilt_covariance(n, &second, scatter)
+}
+
+/// The tilt covariance of a normal `n` fitted to a patch whose second moment across `n` is
+/// `second` (m²) and whose points scatter `scatter` (m) about the fit ([`TILT_PER_SCATTER`]).
+pub(crate) fn tilt_covariance(n: &Vector3<f64>, second: &Matrix3<f64>, scatter: f64) -> Matrix3<f64> {
+    let e = SymmetricEigen::new((second + second.transpose()) * 0.5);
+    let mut covariance = Matrix3::zeros();
+    // the two largest eigenvalues are the tangent extents (the third is ~0 along n)
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
+    for &k in &order[..2] {
+        let dir = e.eigenvectors.column(k).into_owned();
+        let l2 = e.eigenvalues[k];
+        // a tilt along dir turns the normal about n x dir
+        let about = n.cross(&dir);
+        let sigma2 = if l2 > 0.0 { (TILT_PER_SCATTER * scatter).powi(2) / l2 } else { f64::INFINITY };
+        covariance += about * about.transpose() * sigma2;
+    }
+    if covariance.iter().all(|x| x.is_finite()) { covariance } else { Matrix3::from_diagonal_element(f64::INFINITY) }
+}
 
 /// Parameters of target placement.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -107,6 +199,9 @@ pub struct SurfaceTarget {
     pub fit_rms_m: f64,
     /// Model points the fit used.
     pub points: usize,
+    /// Covariance of the normal's error as a rotation vector across it (model frame, rad²; module
+    /// docs): from the scatter of the patch's points about its fitted surface and the patch's extent.
+    pub normal_covariance: Matrix3<f64>,
     /// For a face centre: the 4 corners of the face's minimum-area rectangle, in order.
     pub corners: Option<[Point3<f64>; 4]>,
     /// Angle between `normal` and the tag's z axis, radians (when a tag pose was given).
@@ -191,7 +286,8 @@ impl<'a> SurfaceModel<'a> {
     /// [`Error::Invalid`] when `p` is farther than `max_distance_m` from the model.
     pub fn snap(&self, p: &Point3<f64>, params: &TargetParams) -> Result<SurfaceTarget> {
         let plane = self.local_plane(p, params)?;
-        let normal = self.adaptive_normal(&plane.point, params);
+        let (normal, patch) = self.adaptive_normal(&plane.point, params);
+        let normal_covariance = patch_tilt(&patch, &normal);
         let plane = LocalPlane { normal, ..plane };
         Ok(SurfaceTarget {
             spec: TargetSpec::Point(*p),
@@ -200,6 +296,7 @@ impl<'a> SurfaceModel<'a> {
             axis: -plane.normal,
             fit_rms_m: plane.rms_m,
             points: plane.points,
+            normal_covariance,
             corners: None,
             angle_to_tag_z_rad: None,
         })
@@ -277,18 +374,57 @@ impl<'a> SurfaceModel<'a> {
     }
 
     /// The normal at `q` (module docs: the quadric over `gentle_normal_radius_m` where the surface
-    /// turns slowly, else the quadric over the fold's patch, else the plane over `normal_radius_m`).
-    fn adaptive_normal(&self, q: &Point3<f64>, params: &TargetParams) -> Vector3<f64> {
+    /// turns slowly, else the quadric over the fold's patch, else the plane over `normal_radius_m`),
+    /// and the patch that gave it.
+    fn adaptive_normal(&self, q: &Point3<f64>, params: &TargetParams) -> (Vector3<f64>, Patch) {
         let plane = self.fit_at(q, params.normal_radius_m, params.min_neighbors).1;
+        let round = |radius: f64, n: &Vector3<f64>| Patch { points: self.round_patch(q, n, radius), cubic: false };
         if params.gentle_normal_radius_m <= 0.0 {
-            return plane;
+            return (plane, round(params.normal_radius_m, &plane));
         }
         let wide = |n: &Vector3<f64>| self.quadric_at(q, n, params.gentle_normal_radius_m);
         match wide(&plane).and_then(|w| wide(&w.normal)) {
-            Some(w) if w.curvature * params.min_curvature_radius_m <= 1.0 => w.normal,
-            Some(w) if params.fold_across_sigma_m > 0.0 => self.fold_normal(q, &w, params).unwrap_or(plane),
-            _ => plane,
+            Some(w) if w.curvature * params.min_curvature_radius_m <= 1.0 => {
+                (w.normal, round(params.gentle_normal_radius_m, &w.normal))
+            }
+            Some(w) if params.fold_across_sigma_m > 0.0 => match self.fold_normal(q, &w, params) {
+                Some((n, cubic)) => (n, Patch { points: self.fold_patch(q, &w, &n, params), cubic }),
+                None => (plane, round(params.normal_radius_m, &plane)),
+            },
+            _ => (plane, round(params.normal_radius_m, &plane)),
         }
+    }
+
+    /// The points within `radius` of `q` and of its tangent plane `n`, with Gaussian weights (sigma
+    /// = radius / 2): offsets from `q` and weights.
+    fn round_patch(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Vec<(Vector3<f64>, f64)> {
+        let inv_h2 = 2.0 / (radius * radius);
+        (self.index.within(&q.cast::<f32>(), radius as f32).iter())
+            .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
+            .filter(|d| d.dot(n).abs() <= radius)
+            .map(|d| (d, (-d.norm_squared() * inv_h2).exp()))
+            .collect()
+    }
+
+    /// The fold's patch at `q` ([`SurfaceModel::fold_fit`]'s points and weights, in the frame of
+    /// the normal `n` found there).
+    fn fold_patch(
+        &self,
+        q: &Point3<f64>,
+        wide: &WideQuadric,
+        n: &Vector3<f64>,
+        params: &TargetParams,
+    ) -> Vec<(Vector3<f64>, f64)> {
+        let (s1, s2) = (params.fold_across_sigma_m, params.fold_along_sigma_m.max(params.fold_across_sigma_m));
+        let Some(across) = (wide.sharpest - n * wide.sharpest.dot(n)).try_normalize(1e-9) else { return Vec::new() };
+        let along = n.cross(&across);
+        (self.index.within(&q.cast::<f32>(), (2.0 * s1.hypot(s2)) as f32).iter())
+            .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
+            .filter_map(|d| {
+                let (x, y, z) = (d.dot(&across) / s1, d.dot(&along) / s2, d.dot(n) / s1);
+                (x.abs() <= 2.0 && y.abs() <= 2.0 && z.abs() <= 1.0).then(|| (d, (-0.5 * (x * x + y * y)).exp()))
+            })
+            .collect()
     }
 
     /// Weighted quadric height field over the model points within `radius` of `q` and within
@@ -324,15 +460,15 @@ impl<'a> SurfaceModel<'a> {
 
     /// The normal at `q` where the surface turns fast one way (a groove, a ridge, a fillet; module
     /// docs): the quadric over the fold's patch, or the cubic when it departs from the quadric by
-    /// more than `fold_cubic_departure_rad`. `None` with fewer than 12 points in the patch or a
-    /// degenerate fit.
-    fn fold_normal(&self, q: &Point3<f64>, wide: &WideQuadric, params: &TargetParams) -> Option<Vector3<f64>> {
+    /// more than `fold_cubic_departure_rad` (then `true`). `None` with fewer than 12 points in the
+    /// patch or a degenerate fit.
+    fn fold_normal(&self, q: &Point3<f64>, wide: &WideQuadric, params: &TargetParams) -> Option<(Vector3<f64>, bool)> {
         let (s1, s2) = (params.fold_across_sigma_m, params.fold_along_sigma_m.max(params.fold_across_sigma_m));
         let near = self.index.within(&q.cast::<f32>(), (2.0 * s1.hypot(s2)) as f32);
         let quadric = self.fold_fit(q, &near, wide, (s1, s2), false)?;
         match self.fold_fit(q, &near, wide, (s1, s2), true) {
-            Some(cubic) if cubic.angle(&quadric) > params.fold_cubic_departure_rad => Some(cubic),
-            _ => Some(quadric),
+            Some(cubic) if cubic.angle(&quadric) > params.fold_cubic_departure_rad => Some((cubic, true)),
+            _ => Some((quadric, false)),
         }
     }
 
