@@ -29,6 +29,8 @@ enum Command {
     Import(cmd::import::ImportArgs),
     /// Find the workpiece by its tag in a piercing-time shot; plan approach/pierce/retract tool poses (plan.json, URScript).
     Pierce(cmd::pierce::PierceArgs),
+    /// Choose the views a shot still needs for its targets' predicted errors to meet a tolerance
+    PlanViews(cmd::plan_views::PlanViewsArgs),
     /// Send a plan's robot program to a UR (primary/secondary interface) or Techman (listen node) controller, or print its bytes.
     Send(cmd::send::SendArgs),
     /// Register one cloud to another (coarse-to-fine point-to-plane ICP): writes T_target_source.
@@ -81,6 +83,7 @@ fn main() -> std::process::ExitCode {
         Command::Fuse(args) => cmd::fuse::run(&args),
         Command::Import(args) => cmd::import::run(&args),
         Command::Pierce(args) => cmd::pierce::run(&args),
+        Command::PlanViews(args) => cmd::plan_views::run(&args),
         Command::Register(args) => cmd::register::run(&args),
         Command::Send(args) => cmd::send::run(&args),
         Command::Simulate(args) => cmd::simulate::run(&args),

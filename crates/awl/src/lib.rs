@@ -24,6 +24,7 @@ pub mod off;
 pub mod organized;
 pub mod pierce;
 pub mod pipeline;
+pub mod plan_views;
 #[cfg(any(test, feature = "sim"))]
 pub(crate) mod random;
 pub mod registration;

@@ -8,6 +8,7 @@ pub mod fuse;
 pub mod import;
 pub mod info;
 pub mod pierce;
+pub mod plan_views;
 pub mod register;
 pub mod send;
 pub mod simulate;

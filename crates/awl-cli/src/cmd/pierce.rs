@@ -124,16 +124,59 @@ pub struct RobotArgs {
 
 /// The targets asked for, each once (the second and later copies of one are dropped, each with a
 /// warning), and those warnings.
-fn targets(args: &PierceArgs) -> anyhow::Result<(Vec<TargetSpec>, Vec<String>)> {
+pub fn targets(targets: &[String], targets_file: Option<&Path>) -> anyhow::Result<(Vec<TargetSpec>, Vec<String>)> {
     let mut asked: Vec<TargetSpec> =
-        args.targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
-    if let Some(path) = &args.targets_file {
+        targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
+    if let Some(path) = targets_file {
         asked.extend(read_targets(path)?);
     }
     anyhow::ensure!(!asked.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
     awl::workpiece::check_target_count(asked.len()).map_err(|m| anyhow::anyhow!("--target / --targets-file: {m}"))?;
     let (specs, warnings) = awl::workpiece::target_spec::unique_targets(&asked);
     Ok((specs, warnings))
+}
+
+/// The workpiece's model, checked against its fingerprint in workpiece.json (a warning when it has none).
+pub fn read_model(
+    workpiece_path: &Path,
+    workpiece: &awl::workpiece::Workpiece,
+    model_path: &Path,
+    warnings: &mut Vec<String>,
+) -> anyhow::Result<awl::cloud::PointCloud> {
+    let model = super::common::read_cloud_warned(model_path)
+        .with_context(|| format!("the workpiece's model ({})", workpiece_path.display()))?;
+    match &workpiece.model_check {
+        Some(check) => check.verify(workpiece_path, model_path, &model)?,
+        None => warnings.push(format!(
+            "{} records no model_check (written by an older awl fuse): nothing shows that {} is the model it was \
+             fused with; fuse again to have it checked",
+            workpiece_path.display(),
+            model_path.display()
+        )),
+    }
+    Ok(model)
+}
+
+/// The hand-eye the shot's views start from: a given calibration (`--hand-eye`, which then replaces
+/// the shot's), else the workpiece's (refined from the scan) when the shot records the scan's, else
+/// the shot's recorded one (`None`); and where it came from.
+pub fn hand_eye_prior(
+    workpiece_path: &Path,
+    workpiece: &awl::workpiece::Workpiece,
+    hand_eye: Option<&Path>,
+    shot: &mut awl::scan::Scan,
+) -> anyhow::Result<(String, Option<HandEyePrior>)> {
+    Ok(match hand_eye {
+        Some(path) => {
+            let x = read_ee_from_camera(path)?;
+            shot.ee_from_camera = Some(x);
+            (path.display().to_string(), Some(HandEyePrior::calibrated(x, &path.display().to_string())))
+        }
+        None => match HandEyePrior::of_workpiece(workpiece.hand_eye.as_ref(), shot)? {
+            Some(p) => (format!("{} ({})", workpiece_path.display(), p.source), Some(p)),
+            None => ("scan.json".to_string(), None),
+        },
+    })
 }
 
 /// The arm, `T_ee_tool` and the reach settings of `--robot` / `--robot-file`, if given.
@@ -169,37 +212,15 @@ pub fn robot_setup(args: &RobotArgs) -> anyhow::Result<Option<(Arm, Isometry3<f6
 
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
-    let (specs, mut warnings) = targets(args)?;
+    let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
     let mut shot = read_scan(&args.shot)?;
     // the outputs are this run's alone until they are written (another run into them is refused)
     let _outputs = check_outputs(args, &model_path, &shot)?;
     let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
-    let model = super::common::read_cloud_warned(&model_path)
-        .with_context(|| format!("the workpiece's model ({})", args.workpiece.display()))?;
-    match &workpiece.model_check {
-        Some(check) => check.verify(&args.workpiece, &model_path, &model)?,
-        None => warnings.push(format!(
-            "{} records no model_check (written by an older awl fuse): nothing shows that {} is the model it was \
-             fused with; fuse again to have it checked",
-            args.workpiece.display(),
-            model_path.display()
-        )),
-    }
-    // the hand-eye the shot's views start from: a given calibration, else the workpiece's (refined
-    // from the scan) when the shot records the scan's, else the shot's recorded one
-    let (hand_eye_source, prior) = match &args.hand_eye {
-        Some(path) => {
-            let x = read_ee_from_camera(path)?;
-            shot.ee_from_camera = Some(x);
-            (path.display().to_string(), Some(HandEyePrior::calibrated(x, &path.display().to_string())))
-        }
-        None => match HandEyePrior::of_workpiece(workpiece.hand_eye.as_ref(), &shot)? {
-            Some(p) => (format!("{} ({})", args.workpiece.display(), p.source), Some(p)),
-            None => ("scan.json".to_string(), None),
-        },
-    };
+    let model = read_model(&args.workpiece, &workpiece, &model_path, &mut warnings)?;
+    let (hand_eye_source, prior) = hand_eye_prior(&args.workpiece, &workpiece, args.hand_eye.as_deref(), &mut shot)?;
     let params = PierceParams {
         axis: match args.axis {
             AxisArg::Normal => AxisChoice::Normal,

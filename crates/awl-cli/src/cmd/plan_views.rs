@@ -1,0 +1,130 @@
+//! `awl plan-views WORKPIECE.json --shot DIR --target ... --candidates FILE --tolerance-mm T
+//! [--tolerance-deg D] [--max-views K] -o views.json`: the views a shot still needs for its targets'
+//! predicted errors to meet the tolerance, chosen among given flange poses.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use awl::io::outputs::{OutputCheck, write_files_atomic};
+use awl::io::scan::read_scan;
+use awl::pierce::{LocateParams, PierceParams, Tolerance, plan};
+use awl::plan_views::file::{read_candidates, views_json};
+use awl::plan_views::{PlanViewsParams, plan_after_pierce};
+use awl::workpiece::SurfaceModel;
+use awl::workpiece::json::read_workpiece;
+
+use super::pierce::{hand_eye_prior, read_model, targets};
+
+/// Arguments of `awl plan-views`.
+#[derive(clap::Args)]
+pub struct PlanViewsArgs {
+    /// workpiece.json written by `awl fuse` (the model file is read from beside it).
+    pub workpiece: PathBuf,
+    /// The piercing-time shot so far (an awl-scan/1 folder, world = robot base), as for `awl pierce`.
+    #[arg(long)]
+    pub shot: PathBuf,
+    /// A target, as for `awl pierce` (`x,y,z` or `face-centre@x,y,z`, model frame, metres). Repeat for several.
+    #[arg(long = "target", allow_hyphen_values = true)]
+    pub targets: Vec<String>,
+    /// A file of targets, as for `awl pierce`.
+    #[arg(long)]
+    pub targets_file: Option<PathBuf>,
+    /// The flange poses to choose among (JSON: {"candidates": [{"T_base_ee": 4x4, "why": "..."}]}, or a
+    /// view bank's bank.json with T_base_ee_commanded): a cell's taught poses.
+    #[arg(long)]
+    pub candidates: PathBuf,
+    /// The largest predicted 95 % position error to reach, millimetres.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_mm: Option<f64>,
+    /// The largest predicted 95 % tool-axis error to reach, degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_deg: Option<f64>,
+    /// At most this many views.
+    #[arg(long, default_value_t = 4, allow_hyphen_values = true)]
+    pub max_views: i64,
+    /// T_ee_camera from this JSON file instead of the workpiece's or the shot's, as for `awl pierce`.
+    #[arg(long)]
+    pub hand_eye: Option<PathBuf>,
+    /// Output: views.json (awl-views/1).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// No summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Replace an earlier output file.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Runs `awl plan-views`.
+pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
+    let max_views = usize::try_from(args.max_views)
+        .ok()
+        .filter(|k| (1..=64).contains(k))
+        .ok_or_else(|| anyhow::anyhow!("--max-views must be between 1 and 64, got {}", args.max_views))?;
+    let tolerance = Tolerance {
+        position_m: args.tolerance_mm.map(|t| t * 1e-3),
+        axis_rad: args.tolerance_deg.map(f64::to_radians),
+    };
+    let params = PlanViewsParams { max_views, tolerance, ..PlanViewsParams::default() };
+    params.validate()?;
+    let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
+    let candidates = read_candidates(&args.candidates).context("--candidates")?;
+    let workpiece = read_workpiece(&args.workpiece)?;
+    let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
+    let mut shot = read_scan(&args.shot)?;
+    let mut check = OutputCheck::new(args.force);
+    check
+        .input_file(&args.workpiece, "WORKPIECE")
+        .input_file(&model_path, "the workpiece's model")
+        .input_folder(&args.shot, "--shot")
+        .input_files(&shot.input_files(), "a file the shot names")
+        .input_file(&args.candidates, "--candidates");
+    for (path, what) in [(&args.targets_file, "--targets-file"), (&args.hand_eye, "--hand-eye")] {
+        if let Some(p) = path {
+            check.input_file(p, what);
+        }
+    }
+    check.output_file(&args.output, "-o");
+    let _outputs = super::common::lock_outputs(&check)?;
+    awl::plan_views::check_one_base(&shot)?;
+    let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
+    let model = read_model(&args.workpiece, &workpiece, &model_path, &mut warnings)?;
+    let (_, prior) = hand_eye_prior(&args.workpiece, &workpiece, args.hand_eye.as_deref(), &mut shot)?;
+    let pierce_params = PierceParams {
+        locate: LocateParams::with_refinement(),
+        hand_eye: prior,
+        model_disagreement_m: workpiece
+            .hand_eye
+            .as_ref()
+            .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
+        ..PierceParams::default()
+    };
+    let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
+    let pierce = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &pierce_params)?;
+    warnings.extend(pierce.warnings.iter().cloned());
+    let views = plan_after_pierce(&pierce, &pierce_params, &shot, &model, &candidates, &params)?;
+    let names: Vec<String> = pierce.targets.iter().map(|t| t.surface.spec.to_string()).collect();
+    let mut json = views_json(&views, &candidates, &names, (tolerance.position_m, tolerance.axis_rad));
+    json["warnings"] = serde_json::json!(warnings);
+    let text = serde_json::to_string_pretty(&json)? + "\n";
+    write_files_atomic(&[(args.output.as_path(), text.as_bytes())])?;
+    if !args.quiet {
+        for w in &warnings {
+            eprintln!("warning: {w}");
+        }
+        let worst = |b: &[(f64, f64)]| {
+            b.iter().fold((0.0f64, 0.0f64), |(p, a), &(bp, ba)| (p.max(bp * 1e3), a.max(ba.to_degrees())))
+        };
+        let (p0, a0) = worst(&views.before);
+        println!("the shot's views: worst bounds {p0:.2} mm / {a0:.2} deg");
+        for (k, c) in views.chosen.iter().enumerate() {
+            let (p, a) = worst(&c.bounds);
+            let bank = candidates[c.candidate].view.map_or(String::new(), |v| format!(" (bank view {v})"));
+            println!("view {}: candidate {}{bank}: worst bounds {p:.2} mm / {a:.2} deg", k + 1, c.candidate);
+        }
+        println!("{}: {}", if views.met { "tolerance met" } else { "tolerance NOT met" }, views.stop);
+        println!("wrote {}", args.output.display());
+    }
+    Ok(())
+}
