@@ -70,6 +70,74 @@ fn views_are_chosen_among_candidates_and_bad_input_is_refused() {
         awl::transform::isometry_from_rows(&rows).expect("rigid");
         assert!(view["why"].as_str().expect("why").contains("swung"), "{view}");
     }
+    // the shot taken again with the arm sent to the proposed flange poses, then pierced from all
+    let again = dir.join("shot_planned");
+    ok(awl(&[
+        "simulate",
+        "--scene",
+        "box",
+        "--shot",
+        "flat",
+        "--seed",
+        "3",
+        "--extra-views",
+        s(&out),
+        "-o",
+        s(&again),
+    ]));
+    let scan = read_json(&again.join("scan.json"));
+    assert_eq!(scan["views"].as_array().expect("views").len(), 2 + views.len());
+    let plan = dir.join("plan.json");
+    for (shot, name) in [(&wp.shot, "2 views"), (&again, "with the planned")] {
+        let o = awl(&[
+            "pierce",
+            s(&wp.workpiece),
+            "--shot",
+            s(shot),
+            "--target",
+            target,
+            "-o",
+            s(&plan),
+            "--force",
+            "--quiet",
+        ]);
+        assert!(o.status.success(), "{}", text(&o));
+        let p = read_json(&plan);
+        let t = &p["targets"][0];
+        let truth = wp.truth.targets.iter().find(|t| t.name == "top-centre").expect("top-centre");
+        let e: f64 = (0..3)
+            .map(|k| (t["p_base"][k].as_f64().expect("p") - truth.p_world.expect("p_world")[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let b = t["predicted_error_mm"].as_f64().expect("bound");
+        println!("{name}: {:.2} mm (bound {b:.2} mm)", e * 1e3);
+        assert!(e * 1e3 <= b, "{name}: outside its bound");
+        if shot == &again {
+            // the pierce's bound is the one plan-views predicted (within 25 %)
+            assert!(b <= 1.25 * after && b < before, "{b} vs predicted {after} (before {before})");
+        }
+    }
+    // without candidates: awl's own, swings about the targets and close views of them
+    std::fs::remove_file(&out).expect("rm");
+    let own = ok(awl(&[
+        "plan-views",
+        s(&wp.workpiece),
+        "--shot",
+        s(&wp.shot),
+        "--target",
+        target,
+        "--tolerance-mm",
+        "0.5",
+        "-o",
+        s(&out),
+    ]));
+    assert!(own.status.success());
+    let v = read_json(&out);
+    let whys: Vec<&str> =
+        v["views"].as_array().expect("views").iter().map(|x| x["why"].as_str().expect("why")).collect();
+    println!("own candidates: {whys:?}; worst bound {:.2} mm", bound(&v["bounds_after"]));
+    assert!(!whys.is_empty() && whys.iter().all(|w| w.contains("swing") || w.contains("close view")), "{whys:?}");
+    assert!(bound(&v["bounds_after"]) < 0.8 * before);
     // a tolerance the shot's views already meet: no view, said so
     std::fs::remove_file(&out).expect("rm");
     ok(base(&["--tolerance-mm", "50", "--quiet"]));

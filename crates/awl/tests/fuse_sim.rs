@@ -209,20 +209,25 @@ fn trials(scene: SceneKind, pose: ShotPose, n: usize) {
 }
 
 /// [`trials`] on the truth target `target` (the first when `None`).
-fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
-    let (mean_mm, max_mm, axis_deg) = (2.0, 4.0, 1.0f64);
+/// The seed-1 fused workpiece of `scene` with its `target`, prepared once per test binary.
+fn trial_workpiece(scene: SceneKind, target: Option<&str>) -> &'static TrialWorkpiece {
     let f = seed1(scene);
     let cell = match (scene, target) {
         (SceneKind::Box, _) => &BOX_WORKPIECE,
         (_, Some("flank")) => &FLANK_WORKPIECE,
         _ => &SHELL_WORKPIECE,
     };
-    let wp = cell.get_or_init(|| {
+    cell.get_or_init(|| {
         let tag = workpiece_from_fuse(&f.scan, &f.out, "model.ply", &WorkpieceParams::default())
             .expect("workpiece")
             .expect("the scan declares a tag");
         prepare_workpiece(scene, &tag, &f.sim.truth, &f.sim.cad, &f.out.model, target).unwrap_or_else(|e| panic!("{e}"))
-    });
+    })
+}
+
+fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
+    let (mean_mm, max_mm, axis_deg) = (2.0, 4.0, 1.0f64);
+    let wp = trial_workpiece(scene, target);
     let hand_eye = calibrate_rig(1, 20).expect("calibration");
     let setup = ShotSetup {
         scene,
@@ -237,6 +242,7 @@ fn trials_at(scene: SceneKind, target: Option<&str>, pose: ShotPose, n: usize) {
             ..PierceParams::default()
         },
         robot: None,
+        plan_views: 0,
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let rows: Vec<_> = (1..=n)
@@ -330,4 +336,59 @@ fn trials_shell_flank_flat() {
 fn trials_shell_flank_tilted_30() {
     // 10 trials: mean 1.56 mm, max 3.13 mm, axis max 0.86 deg
     trials_at(SceneKind::Shell, Some("flank"), ShotPose::Tilt30, 5);
+}
+
+/// Issue 79 on awl's simulator: the hand-eye recorded in the scan (refined by the fuse, as a user
+/// without a fresh calibration has it), each tilted box shot pierced from its 2 views and again from
+/// them plus up to 4 views `awl plan-views` proposed among its own candidates (the shot simulated
+/// again with the arm sent there): the planned views lower the error, and the bounds hold.
+#[test]
+fn planned_views_lower_the_error_with_the_recorded_hand_eye() {
+    let scene = SceneKind::Box;
+    let f = seed1(scene);
+    let wp = trial_workpiece(scene, None);
+    let tag = workpiece_from_fuse(&f.scan, &f.out, "model.ply", &WorkpieceParams::default())
+        .expect("workpiece")
+        .expect("tag");
+    let prior = HandEyePrior::of_report(tag.hand_eye.as_ref().expect("the fuse's hand-eye")).expect("prior");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |plan_views: usize| {
+        let setup = ShotSetup {
+            scene,
+            pose: ShotPose::Tilt30,
+            seed: 1,
+            camera_seed: 1,
+            ee_from_camera: f.scan.ee_from_camera.expect("recorded"),
+            params: PierceParams {
+                locate: LocateParams::with_refinement(),
+                hand_eye: Some(prior.clone()),
+                ..PierceParams::default()
+            },
+            robot: None,
+            plan_views,
+        };
+        (1..=3)
+            .map(|k| {
+                run_shot(wp, &setup, k, &dir.path().join(format!("{plan_views}-{k}")))
+                    .unwrap_or_else(|e| panic!("trial {k}: {e}"))
+            })
+            .collect::<Vec<_>>()
+    };
+    let (before, after) = (run(0), run(4));
+    println!("{}", format_table("2 views", &before));
+    println!("{}", format_table("2 views + planned", &after));
+    let (b, a) = (TrialSummary::of(&before), TrialSummary::of(&after));
+    assert!(
+        after.iter().all(|r| r.planned_views >= 1 && r.planned_views <= 4),
+        "{:?}",
+        after.iter().map(|r| r.planned_views).collect::<Vec<_>>()
+    );
+    for r in &after {
+        assert!(r.error().norm() <= r.prediction.position_bound_m, "trial {}: outside its bound", r.trial);
+        assert!(r.axis_error_rad <= r.prediction.axis_bound_rad, "trial {}: axis outside its bound", r.trial);
+    }
+    // measured 1.19 mm mean / 1.49 max (from the 2 views: 2.63 / 2.99); issue 79 asks mean <= 1.2 mm and
+    // max <= 2.5 mm over seeds 1-8 (BENCHMARKS.md): here, 3 shots, the error at most 0.6 times the 2 views'
+    assert!(a.mean_m <= 0.6 * b.mean_m, "planned {:.2} mm vs {:.2} mm", a.mean_m * 1e3, b.mean_m * 1e3);
+    assert!(a.max_m <= 0.0025, "planned: max {:.2} mm", a.max_m * 1e3);
 }

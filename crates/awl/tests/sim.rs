@@ -465,3 +465,36 @@ fn embedded_tag_bitmaps_match_the_canonical_pngs() {
         }
     }
 }
+
+/// A shot taken again with views at commanded flange poses (`awl trial --plan-views`): its own
+/// views, scene and truth unchanged, the extra views rendered where the arm was sent (the truth's
+/// flange is the commanded one; scan.json reports it with the arm's noise); extra views in a scan,
+/// or a pose that is not finite, are refused.
+#[test]
+fn a_shot_takes_extra_views_where_the_arm_is_sent() {
+    let p = SimParams { seed: 4, ..SimParams::shot(SceneKind::Box, awl::sim::ShotPose::Flat) };
+    let plain = simulate(&p).expect("shot");
+    let first = plain.truth.views[0].base_from_ee.expect("flange");
+    let sent = [first * Isometry3::translation(0.03, 0.0, -0.02), first * Isometry3::rotation(Vector3::x() * 0.1)];
+    let more = awl::sim::simulate_with_views(&p, &sent).expect("shot with extra views");
+    assert_eq!(more.views.len(), 4);
+    assert!(same_images(&plain.views, &more.views[..2]), "the shot's own views changed");
+    assert_eq!(plain.truth.world_from_object, more.truth.world_from_object);
+    assert_eq!(plain.scan.views[..2], more.scan.views[..2], "the shot's own recorded poses changed");
+    for (k, f) in sent.iter().enumerate() {
+        let t = &more.truth.views[2 + k];
+        assert_eq!(t.base_from_ee, Some(*f));
+        assert_eq!(t.world_from_camera, f * awl::sim::rig_ee_from_camera());
+        // the arm's noise: within 5 mm / 0.5 deg, not zero
+        let awl::scan::ViewPose::Chain { base_from_ee, .. } = more.scan.views[2 + k].pose else { panic!("chain") };
+        let (dt, dr) = awl::transform::pose_difference(&base_from_ee, f);
+        assert!(dt > 0.0 && dt < 0.005 && dr < 0.5f64.to_radians(), "{dt} {dr}");
+        assert!(more.views[2 + k].depth.data.iter().filter(|&&d| d > 0).count() > 10_000, "view {} is empty", 2 + k);
+    }
+    let scan = SimParams::scan(SceneKind::Box);
+    assert!(awl::sim::simulate_with_views(&scan, &sent).expect_err("a scan").to_string().contains("shot"));
+    let mut bad = sent;
+    bad[1].translation.vector.x = f64::NAN;
+    let e = awl::sim::simulate_with_views(&p, &bad).expect_err("NaN").to_string();
+    assert!(e.contains("views[1].T_base_ee") && e.contains("not finite"), "{e}");
+}

@@ -30,9 +30,11 @@ pub struct PlanViewsArgs {
     #[arg(long)]
     pub targets_file: Option<PathBuf>,
     /// The flange poses to choose among (JSON: {"candidates": [{"T_base_ee": 4x4, "why": "..."}]}, or a
-    /// view bank's bank.json with T_base_ee_commanded): a cell's taught poses.
+    /// view bank's bank.json with T_base_ee_commanded): a cell's taught poses. Default: awl's own,
+    /// swings of the shot's first view about the targets and close views of each (their reach is not
+    /// checked with the arm's IK yet: only 0.3-1.1 m from the base).
     #[arg(long)]
-    pub candidates: PathBuf,
+    pub candidates: Option<PathBuf>,
     /// The largest predicted 95 % position error to reach, millimetres.
     #[arg(long, allow_hyphen_values = true)]
     pub tolerance_mm: Option<f64>,
@@ -69,7 +71,7 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     let params = PlanViewsParams { max_views, tolerance, ..PlanViewsParams::default() };
     params.validate()?;
     let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
-    let candidates = read_candidates(&args.candidates).context("--candidates")?;
+    let given = args.candidates.as_deref().map(read_candidates).transpose().context("--candidates")?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
     let mut shot = read_scan(&args.shot)?;
@@ -78,9 +80,10 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         .input_file(&args.workpiece, "WORKPIECE")
         .input_file(&model_path, "the workpiece's model")
         .input_folder(&args.shot, "--shot")
-        .input_files(&shot.input_files(), "a file the shot names")
-        .input_file(&args.candidates, "--candidates");
-    for (path, what) in [(&args.targets_file, "--targets-file"), (&args.hand_eye, "--hand-eye")] {
+        .input_files(&shot.input_files(), "a file the shot names");
+    for (path, what) in
+        [(&args.targets_file, "--targets-file"), (&args.hand_eye, "--hand-eye"), (&args.candidates, "--candidates")]
+    {
         if let Some(p) = path {
             check.input_file(p, what);
         }
@@ -103,6 +106,10 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);
     let pierce = plan(&surface, &workpiece.tag, &world_from_tag, &shot, &specs, &pierce_params)?;
     warnings.extend(pierce.warnings.iter().cloned());
+    let candidates = match given {
+        Some(c) => c,
+        None => awl::plan_views::sample::candidates_after_pierce(&pierce, &shot)?,
+    };
     let views = plan_after_pierce(&pierce, &pierce_params, &shot, &model, &candidates, &params)?;
     let names: Vec<String> = pierce.targets.iter().map(|t| t.surface.spec.to_string()).collect();
     let mut json = views_json(&views, &candidates, &names, (tolerance.position_m, tolerance.axis_rad));

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::Context;
 use awl::io::outputs::OutputCheck;
 use awl::sim::capture::{CaptureParams, simulate_capture};
-use awl::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, simulate, write_simulation};
+use awl::sim::{NoiseLevel, SceneKind, ShotPose, SimParams, write_simulation};
 use awl::transform::pose_difference;
 
 /// The workpiece to simulate.
@@ -80,6 +80,10 @@ pub struct SimulateArgs {
     /// cylinder, nothing then constrains the views' spin about its axis.
     #[arg(long, conflicts_with_all = ["shot", "capture"])]
     pub bare: bool,
+    /// A shot's extra views: the flange poses of a views.json (`awl plan-views -o`), each taken after the
+    /// shot's own views with the arm's noise (shot mode only).
+    #[arg(long, requires = "shot")]
+    pub extra_views: Option<PathBuf>,
     /// Output scan folder (must not exist or be empty, unless --force).
     #[arg(short = 'o', long = "output")]
     pub output: PathBuf,
@@ -163,7 +167,11 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<()> {
     }
     let start = Instant::now();
     let params = params(args);
-    let sim = simulate(&params).context("simulation failed")?;
+    let extra = match &args.extra_views {
+        Some(path) => awl::plan_views::file::read_view_poses(path).context("--extra-views")?,
+        None => Vec::new(),
+    };
+    let sim = awl::sim::simulate_with_views(&params, &extra).context("simulation failed")?;
     write_simulation(&args.output, &sim, args.force)
         .with_context(|| format!("cannot write the scan folder {}", args.output.display()))?;
     let kind = match params.shot {

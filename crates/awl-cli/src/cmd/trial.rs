@@ -63,6 +63,10 @@ pub struct TrialArgs {
     /// Only the table.
     #[arg(long)]
     pub quiet: bool,
+    /// After each 2-view shot, plan up to this many more views (`awl plan-views` among candidates
+    /// sampled around the shot), take the shot again with them and pierce from all.
+    #[arg(long, default_value_t = 0)]
+    pub plan_views: usize,
     #[command(flatten)]
     pub robot: RobotArgs,
 }
@@ -74,7 +78,7 @@ fn row_json(r: &TrialRow) -> serde_json::Value {
         "truth_m": [r.truth.x, r.truth.y, r.truth.z], "estimate_m": [r.estimate.x, r.estimate.y, r.estimate.z],
         "error_m": [e.x, e.y, e.z], "distance_m": e.norm(),
         "tag_only_distance_m": (r.estimate_tag_only - r.truth).norm(),
-        "axis_error_deg": r.axis_error_rad.to_degrees(), "refined": r.refined,
+        "axis_error_deg": r.axis_error_rad.to_degrees(), "refined": r.refined, "planned_views": r.planned_views,
         "locate_rotation_deg": r.locate_rotation_rad.to_degrees(),
         "model_normal_error_deg": r.model_normal_error_rad.to_degrees(),
         "axis_error_at_point_deg": r.axis_error_at_point_rad.to_degrees(),
@@ -127,6 +131,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
     set_threads(args.threads)?;
     anyhow::ensure!(args.tilt == 0 || args.tilt == 30, "--tilt must be 0 or 30, got {}", args.tilt);
     anyhow::ensure!((1..=1000).contains(&args.trials), "--trials must be 1 to 1000, got {}", args.trials);
+    anyhow::ensure!(args.plan_views <= 16, "--plan-views must be 0 to 16, got {}", args.plan_views);
     // the arm and the tool are read and checked before the scan is simulated
     let robot = robot_setup(&args.robot)?.map(|(arm, ee_from_tool, params)| TrialRobot { arm, ee_from_tool, params });
     check_robot_inputs(args)?;
@@ -215,6 +220,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
             ..PierceParams::default()
         },
         robot,
+        plan_views: args.plan_views,
     };
     let bar = stage_bar(args.quiet);
     bar.set_length(args.trials as u64);

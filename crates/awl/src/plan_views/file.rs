@@ -67,6 +67,37 @@ pub fn read_candidates(path: &Path) -> Result<Vec<Candidate>> {
         .collect()
 }
 
+#[derive(Deserialize)]
+struct ViewsFile {
+    format: String,
+    views: Vec<ViewEntry>,
+}
+
+#[derive(Deserialize)]
+struct ViewEntry {
+    #[serde(rename = "T_base_ee")]
+    base_from_ee: Rows,
+}
+
+/// The proposed flange poses of a `views.json` (`awl-views/1`), in visiting order.
+///
+/// # Errors
+/// [`Error::Format`] / [`Error::Field`] naming the file: not JSON, another format, more than
+/// [`MAX_CANDIDATES`] views, a pose that is not rigid.
+pub fn read_view_poses(path: &Path) -> Result<Vec<nalgebra::Isometry3<f64>>> {
+    let bytes = read_bytes(path)?;
+    let file: ViewsFile = parse_json(path, &bytes)?;
+    if file.format != "awl-views/1" {
+        return Err(Error::field(path, "format", format!("`{}`, expected `awl-views/1`", file.format)));
+    }
+    if file.views.len() > MAX_CANDIDATES {
+        return Err(Error::format(path, format!("{} views, more than {MAX_CANDIDATES}", file.views.len())));
+    }
+    (file.views.iter().enumerate())
+        .map(|(i, v)| pose_field(path, &format!("views[{i}].T_base_ee"), &v.base_from_ee))
+        .collect()
+}
+
 fn bounds_json(bounds: &[(f64, f64)], names: &[String]) -> Value {
     let finite = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
     Value::Array(

@@ -14,11 +14,12 @@
 //! [`PlanViewsParams::clearance_m`] of the shot's own depth points (something there) or that sees too
 //! little of the model is left out, with the reason.
 //!
-//! Not yet: own candidate sampling with the arm's inverse kinematics and collision checks (today the
-//! candidates are given: a cell's taught poses or a view bank), and the targets' local surfaces
-//! measured from close views (the axis bound falls only by the located rotation).
+//! Candidates are given (a cell's taught poses, a view bank) or sampled around the shot
+//! ([`sample`]). Not yet: the arm's inverse kinematics and collision checks on them, and the targets'
+//! local surfaces measured from close views (the axis bound falls only by the located rotation).
 
 pub mod file;
+pub mod sample;
 
 use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
 

@@ -267,13 +267,40 @@ pub fn nearest_surface(
 /// # Errors
 /// [`Error::Invalid`] for a bad view count, or when a shot finds no camera pose that sees the tag.
 pub fn simulate(params: &SimParams) -> Result<Simulation> {
+    simulate_with_views(params, &[])
+}
+
+/// At most this many extra views in one shot ([`simulate_with_views`]).
+pub const MAX_EXTRA_VIEWS: usize = 64;
+
+/// [`simulate`], a shot with `extra_flanges` views after its own: the arm commanded to each flange
+/// pose (`T_base_ee`, e.g. `awl plan-views`' proposals), with the arm's noise on what it reports.
+/// The shot's own views, scene and noise are those of [`simulate`] with the same parameters.
+///
+/// # Errors
+/// As [`simulate`]; [`Error::Invalid`] for extra views in a scan, more than [`MAX_EXTRA_VIEWS`], or a
+/// flange pose that is not finite.
+pub fn simulate_with_views(params: &SimParams, extra_flanges: &[nalgebra::Isometry3<f64>]) -> Result<Simulation> {
     params.validate()?;
+    if !extra_flanges.is_empty() && params.shot.is_none() {
+        return Err(Error::invalid("views", "extra views are taken in a shot only (give a shot pose)"));
+    }
+    if extra_flanges.len() > MAX_EXTRA_VIEWS {
+        return Err(Error::invalid(
+            "views",
+            format!("{} extra views, more than {MAX_EXTRA_VIEWS}", extra_flanges.len()),
+        ));
+    }
+    if let Some(i) = extra_flanges.iter().position(|f| !f.to_homogeneous().iter().all(|v| v.is_finite())) {
+        return Err(Error::invalid(format!("views[{i}].T_base_ee"), "not finite"));
+    }
     let wp = workpiece::workpiece(params.scene);
     let camera = simulated_camera(params.camera_seed());
-    let plan = match params.shot {
+    let mut plan = match params.shot {
         None => record::scan_plan(&wp, params, &camera)?,
         Some(pose) => record::shot_plan(&wp, params, pose, &camera)?,
     };
+    record::add_views(&mut plan, &wp, &camera, extra_flanges);
     let scale = params.noise.scale();
     let renderer = render::Renderer {
         world: &plan.world,

@@ -98,6 +98,21 @@ pub(crate) fn shot_plan(wp: &Workpiece, params: &SimParams, pose: ShotPose, came
     })
 }
 
+/// Adds views at the true flange poses `flanges` to a shot's plan (world = the robot base).
+pub(crate) fn add_views(plan: &mut Plan, wp: &Workpiece, camera: &DepthCamera, flanges: &[Isometry3<f64>]) {
+    let views: Vec<RigView> = flanges
+        .iter()
+        .map(|f| RigView {
+            stop: 0,
+            world_from_base: Isometry3::identity(),
+            base_from_ee: *f,
+            world_from_camera: f * true_ee_from_camera(),
+        })
+        .collect();
+    plan.observations.extend(observe_all(&plan.world, wp, camera, &plan.world_from_object, &views));
+    plan.views.extend(views);
+}
+
 fn image_path(kind: &str, index: usize) -> PathBuf {
     PathBuf::from(format!("{kind}/{index:06}.png"))
 }

@@ -179,6 +179,8 @@ pub struct TrialRow {
     pub face_centre: bool,
     /// The planned target's reach for [`ShotSetup::robot`] (`None`: no arm given).
     pub reach: Option<TargetReach>,
+    /// Views `awl plan-views` added to the shot ([`ShotSetup::plan_views`]).
+    pub planned_views: usize,
 }
 
 impl TrialRow {
@@ -233,6 +235,36 @@ pub struct ShotSetup {
     pub params: PierceParams,
     /// The arm each plan's reach is checked for (`None`: not checked).
     pub robot: Option<TrialRobot>,
+    /// After the 2-view shot, `awl plan-views` proposes up to this many views among its own
+    /// candidates ([`crate::plan_views::sample::sample_candidates`]), the shot is taken again with
+    /// them and the target planned from all (0: the shot alone).
+    pub plan_views: usize,
+}
+
+/// The tolerance the trials plan views for: 1 mm, so that the views are planned while they lower
+/// the bound (the trial scores the errors, not a go).
+const TRIAL_TOLERANCE_M: f64 = 0.001;
+
+/// The flange poses `awl plan-views` proposes after `planned` (up to `max_views`, among the
+/// candidates sampled around the shot's first view and the targets).
+fn planned_flanges(
+    planned: &crate::pierce::PiercePlan,
+    params: &PierceParams,
+    shot: &crate::scan::Scan,
+    model: &crate::cloud::PointCloud,
+    max_views: usize,
+) -> Result<Vec<Isometry3<f64>>> {
+    let candidates = crate::plan_views::sample::candidates_after_pierce(planned, shot)?;
+    if candidates.is_empty() {
+        return Ok(Vec::new());
+    }
+    let views_params = crate::plan_views::PlanViewsParams {
+        max_views,
+        tolerance: crate::pierce::Tolerance { position_m: Some(TRIAL_TOLERANCE_M), axis_rad: None },
+        ..crate::plan_views::PlanViewsParams::default()
+    };
+    let views = crate::plan_views::plan_after_pierce(planned, params, shot, model, &candidates, &views_params)?;
+    Ok(views.chosen.iter().map(|c| candidates[c.candidate].base_from_ee).collect())
 }
 
 /// Simulates the shot of trial `k` (1-based) into `dir`, plans the target and compares with the
@@ -244,7 +276,7 @@ pub struct ShotSetup {
 pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) -> Result<TrialRow> {
     let shot_seed = shot_seed(setup.seed, k);
     let (scene, pose, params) = (setup.scene, setup.pose, &setup.params);
-    let sim =
+    let mut sim =
         simulate(&SimParams { seed: shot_seed, camera_seed: Some(setup.camera_seed), ..SimParams::shot(scene, pose) })?;
     write_simulation(dir, &sim, false)?;
     let mut shot = read_scan(dir)?;
@@ -254,6 +286,7 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         .targets
         .iter()
         .find(|t| t.name == wp.target.name)
+        .cloned()
         .ok_or_else(|| Error::invalid("shot truth", format!("no target {}", wp.target.name)))?;
     let (truth, n_base) = match (truth_target.p_world, truth_target.n_world) {
         (Some(p), Some(n)) => (p, n),
@@ -261,6 +294,21 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
     };
     let surface = SurfaceModel::new(&wp.model)?.with_floor(wp.floor);
     let mut planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+    let mut planned_views = 0;
+    if setup.plan_views > 0 {
+        let flanges = planned_flanges(&planned, params, &shot, &wp.model, setup.plan_views)?;
+        if !flanges.is_empty() {
+            planned_views = flanges.len();
+            let sim_params =
+                SimParams { seed: shot_seed, camera_seed: Some(setup.camera_seed), ..SimParams::shot(scene, pose) };
+            sim = crate::sim::simulate_with_views(&sim_params, &flanges)?;
+            let dir = dir.join("planned");
+            write_simulation(&dir, &sim, false)?;
+            shot = read_scan(&dir)?;
+            shot.ee_from_camera = Some(setup.ee_from_camera);
+            planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
+        }
+    }
     if let Some(robot) = &setup.robot {
         let reference = shot_joints(&shot)?;
         plan_reach(&mut planned, &robot.arm, &robot.ee_from_tool, &wp.model, wp.floor, reference, &robot.params)?;
@@ -295,5 +343,6 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
         normal_base: t.normal_base,
         face_centre: t.surface.corners.is_some(),
         reach: t.reach.clone(),
+        planned_views,
     })
 }
