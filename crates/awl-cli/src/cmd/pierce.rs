@@ -71,13 +71,8 @@ pub struct PierceArgs {
     /// T_ee_camera from this JSON file (e.g. `awl calibrate hand-eye -o`) instead of the shot's scan.json.
     #[arg(long)]
     pub hand_eye: Option<PathBuf>,
-    /// Refuse (go: false, left out of the programs) a target whose predicted 95 % position error
-    /// exceeds this, millimetres; the command then exits with code 3.
-    #[arg(long, allow_hyphen_values = true)]
-    pub tolerance_mm: Option<f64>,
-    /// Refuse a target whose predicted 95 % tool-axis error exceeds this, degrees (exit code 3).
-    #[arg(long, allow_hyphen_values = true)]
-    pub tolerance_deg: Option<f64>,
+    #[command(flatten)]
+    pub tolerance: ToleranceArgs,
     /// Use the tag pose only: do not refine it by registering the shot's depth to the model.
     #[arg(long)]
     pub no_refine: bool,
@@ -95,6 +90,25 @@ pub struct PierceArgs {
     pub allow_long_moves: bool,
     #[command(flatten)]
     pub robot: RobotArgs,
+}
+
+/// The largest predicted errors allowed (`--tolerance-mm`, `--tolerance-deg`).
+#[derive(clap::Args)]
+pub struct ToleranceArgs {
+    /// The largest predicted 95 % position error allowed, millimetres: `awl pierce` refuses a target
+    /// over it (go: false, left out of the programs, exit code 3); `awl plan-views` plans views to reach it.
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_mm: Option<f64>,
+    /// The largest predicted 95 % tool-axis error allowed, degrees (as --tolerance-mm).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance_deg: Option<f64>,
+}
+
+impl ToleranceArgs {
+    /// In metres and radians (not yet checked: [`Tolerance::validate`]).
+    pub fn tolerance(&self) -> Tolerance {
+        Tolerance { position_m: self.tolerance_mm.map(|t| t * 1e-3), axis_rad: self.tolerance_deg.map(f64::to_radians) }
+    }
 }
 
 /// The arm the plan's reach is checked for (`--robot` / `--robot-file`).
@@ -233,10 +247,7 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
             .hand_eye
             .as_ref()
             .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
-        tolerance: Tolerance {
-            position_m: args.tolerance_mm.map(|t| t * 1e-3),
-            axis_rad: args.tolerance_deg.map(f64::to_radians),
-        },
+        tolerance: args.tolerance.tolerance(),
         ..PierceParams::default()
     };
     params.tolerance.validate()?;

@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use awl::io::outputs::{OutputCheck, write_files_atomic};
 use awl::io::scan::read_scan;
-use awl::pierce::{LocateParams, PierceParams, Tolerance, plan};
+use awl::pierce::{LocateParams, PierceParams, plan};
 use awl::plan_views::file::{read_candidates, views_json};
 use awl::plan_views::{PlanViewsParams, plan_after_pierce};
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::json::read_workpiece;
 
-use super::pierce::{hand_eye_prior, read_model, targets};
+use super::pierce::{ToleranceArgs, hand_eye_prior, read_model, targets};
 
 /// Arguments of `awl plan-views`.
 #[derive(clap::Args)]
@@ -35,12 +35,8 @@ pub struct PlanViewsArgs {
     /// checked with the arm's IK yet: only 0.3-1.1 m from the base).
     #[arg(long)]
     pub candidates: Option<PathBuf>,
-    /// The largest predicted 95 % position error to reach, millimetres.
-    #[arg(long, allow_hyphen_values = true)]
-    pub tolerance_mm: Option<f64>,
-    /// The largest predicted 95 % tool-axis error to reach, degrees.
-    #[arg(long, allow_hyphen_values = true)]
-    pub tolerance_deg: Option<f64>,
+    #[command(flatten)]
+    pub tolerance: ToleranceArgs,
     /// At most this many views.
     #[arg(long, default_value_t = 4, allow_hyphen_values = true)]
     pub max_views: i64,
@@ -64,10 +60,7 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         .ok()
         .filter(|k| (1..=64).contains(k))
         .ok_or_else(|| anyhow::anyhow!("--max-views must be between 1 and 64, got {}", args.max_views))?;
-    let tolerance = Tolerance {
-        position_m: args.tolerance_mm.map(|t| t * 1e-3),
-        axis_rad: args.tolerance_deg.map(f64::to_radians),
-    };
+    let tolerance = args.tolerance.tolerance();
     let params = PlanViewsParams { max_views, tolerance, ..PlanViewsParams::default() };
     params.validate()?;
     let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
