@@ -39,13 +39,8 @@ pub struct PierceArgs {
     /// The piercing-time shot: an awl-scan/1 folder with world = robot base, color views that see the tag.
     #[arg(long)]
     pub shot: PathBuf,
-    /// A target, model frame, metres: `x,y,z` (snapped onto the surface) or `face-centre@x,y,z`
-    /// (the centre of the planar face nearest the point). Repeat for several; negative numbers are fine.
-    #[arg(long = "target", allow_hyphen_values = true)]
-    pub targets: Vec<String>,
-    /// A file of targets: one per line (# comments), or JSON (an array of target strings or {"targets": [...]}).
-    #[arg(long)]
-    pub targets_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub targets: TargetArgs,
     /// Output plan (JSON): T_base_model, and per target p_base, axis_base and the tool poses.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -90,6 +85,18 @@ pub struct PierceArgs {
     pub allow_long_moves: bool,
     #[command(flatten)]
     pub robot: RobotArgs,
+}
+
+/// The targets (`--target`, `--targets-file`).
+#[derive(clap::Args)]
+pub struct TargetArgs {
+    /// A target, model frame, metres: `x,y,z` (snapped onto the surface) or `face-centre@x,y,z`
+    /// (the centre of the planar face nearest the point). Repeat for several; negative numbers are fine.
+    #[arg(long = "target", allow_hyphen_values = true)]
+    pub targets: Vec<String>,
+    /// A file of targets: one per line (# comments), or JSON (an array of target strings or {"targets": [...]}).
+    #[arg(long)]
+    pub targets_file: Option<PathBuf>,
 }
 
 /// The largest predicted errors allowed (`--tolerance-mm`, `--tolerance-deg`).
@@ -138,10 +145,10 @@ pub struct RobotArgs {
 
 /// The targets asked for, each once (the second and later copies of one are dropped, each with a
 /// warning), and those warnings.
-pub fn targets(targets: &[String], targets_file: Option<&Path>) -> anyhow::Result<(Vec<TargetSpec>, Vec<String>)> {
+pub fn targets(args: &TargetArgs) -> anyhow::Result<(Vec<TargetSpec>, Vec<String>)> {
     let mut asked: Vec<TargetSpec> =
-        targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
-    if let Some(path) = targets_file {
+        args.targets.iter().map(|t| TargetSpec::parse(t)).collect::<Result<_, _>>().context("--target")?;
+    if let Some(path) = &args.targets_file {
         asked.extend(read_targets(path)?);
     }
     anyhow::ensure!(!asked.is_empty(), "no target: give --target x,y,z (or face-centre@x,y,z) or --targets-file");
@@ -226,7 +233,7 @@ pub fn robot_setup(args: &RobotArgs) -> anyhow::Result<Option<(Arm, Isometry3<f6
 
 /// Runs `awl pierce`.
 pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
-    let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
+    let (specs, mut warnings) = targets(&args.targets)?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
     let mut shot = read_scan(&args.shot)?;
@@ -243,10 +250,7 @@ pub fn run(args: &PierceArgs) -> anyhow::Result<()> {
         stroke: stroke(args)?,
         locate: if args.no_refine { LocateParams::default() } else { LocateParams::with_refinement() },
         hand_eye: prior,
-        model_disagreement_m: workpiece
-            .hand_eye
-            .as_ref()
-            .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
+        model_disagreement_m: workpiece.model_disagreement_m(),
         tolerance: args.tolerance.tolerance(),
         ..PierceParams::default()
     };
@@ -321,7 +325,7 @@ fn check_outputs(
         .input_folder(&args.shot, "--shot")
         .input_files(&shot.input_files(), "a file the shot names");
     for (path, what) in [
-        (&args.targets_file, "--targets-file"),
+        (&args.targets.targets_file, "--targets-file"),
         (&args.hand_eye, "--hand-eye"),
         (&args.robot.robot_file, "--robot-file"),
         (&args.robot.tcp, "--tcp"),

@@ -13,7 +13,7 @@ use awl::plan_views::{PlanViewsParams, plan_after_pierce};
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::json::read_workpiece;
 
-use super::pierce::{ToleranceArgs, hand_eye_prior, read_model, targets};
+use super::pierce::{TargetArgs, ToleranceArgs, hand_eye_prior, read_model, targets};
 
 /// Arguments of `awl plan-views`.
 #[derive(clap::Args)]
@@ -23,12 +23,8 @@ pub struct PlanViewsArgs {
     /// The piercing-time shot so far (an awl-scan/1 folder, world = robot base), as for `awl pierce`.
     #[arg(long)]
     pub shot: PathBuf,
-    /// A target, as for `awl pierce` (`x,y,z` or `face-centre@x,y,z`, model frame, metres). Repeat for several.
-    #[arg(long = "target", allow_hyphen_values = true)]
-    pub targets: Vec<String>,
-    /// A file of targets, as for `awl pierce`.
-    #[arg(long)]
-    pub targets_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub targets: TargetArgs,
     /// The flange poses to choose among (JSON: {"candidates": [{"T_base_ee": 4x4, "why": "..."}]}, or a
     /// view bank's bank.json with T_base_ee_commanded): a cell's taught poses. Default: awl's own,
     /// swings of the shot's first view about the targets and close views of each (their reach is not
@@ -63,7 +59,7 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     let tolerance = args.tolerance.tolerance();
     let params = PlanViewsParams { max_views, tolerance, ..PlanViewsParams::default() };
     params.validate()?;
-    let (specs, mut warnings) = targets(&args.targets, args.targets_file.as_deref())?;
+    let (specs, mut warnings) = targets(&args.targets)?;
     let given = args.candidates.as_deref().map(read_candidates).transpose().context("--candidates")?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
@@ -74,9 +70,11 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         .input_file(&model_path, "the workpiece's model")
         .input_folder(&args.shot, "--shot")
         .input_files(&shot.input_files(), "a file the shot names");
-    for (path, what) in
-        [(&args.targets_file, "--targets-file"), (&args.hand_eye, "--hand-eye"), (&args.candidates, "--candidates")]
-    {
+    for (path, what) in [
+        (&args.targets.targets_file, "--targets-file"),
+        (&args.hand_eye, "--hand-eye"),
+        (&args.candidates, "--candidates"),
+    ] {
         if let Some(p) = path {
             check.input_file(p, what);
         }
@@ -90,10 +88,7 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     let pierce_params = PierceParams {
         locate: LocateParams::with_refinement(),
         hand_eye: prior,
-        model_disagreement_m: workpiece
-            .hand_eye
-            .as_ref()
-            .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
+        model_disagreement_m: workpiece.model_disagreement_m(),
         ..PierceParams::default()
     };
     let surface = SurfaceModel::new(&model)?.with_floor(workpiece.floor);

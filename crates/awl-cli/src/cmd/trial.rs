@@ -213,10 +213,7 @@ pub fn run(args: &TrialArgs) -> anyhow::Result<()> {
         params: PierceParams {
             locate: LocateParams::with_refinement(),
             hand_eye: Some(prior),
-            model_disagreement_m: workpiece
-                .hand_eye
-                .as_ref()
-                .map_or(0.0, awl::pipeline::HandEyeReport::model_disagreement_m),
+            model_disagreement_m: workpiece.model_disagreement_m(),
             ..PierceParams::default()
         },
         robot,

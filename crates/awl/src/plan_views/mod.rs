@@ -170,7 +170,8 @@ fn evidence(
     obstacles: &KdIndex,
     params: &PlanViewsParams,
 ) -> std::result::Result<Evidence, String> {
-    let model_from_camera = state.base_from_model.inverse() * base_from_ee * state.prior.ee_from_camera;
+    let view = chain_view(state, base_from_ee);
+    let model_from_camera = view.model_from_camera;
     let camera_base = (base_from_ee * state.prior.ee_from_camera).translation.vector;
     if let Some(n) = obstacles.nearest(&Point3::from(camera_base).cast::<f32>())
         && f64::from(n.dist_sq).sqrt() < params.clearance_m
@@ -185,6 +186,7 @@ fn evidence(
     let normals = state.model.normals.as_ref();
     let stride = (state.model.len() / params.model_samples.max(1)).max(1);
     let cos_max = params.max_incidence_rad.cos();
+    let (w, h) = (f64::from(state.camera.intrinsics.width), f64::from(state.camera.intrinsics.height));
     let mut seen: Vec<(Vector3<f64>, Vector3<f64>)> = Vec::new();
     for i in (0..state.model.len()).step_by(stride) {
         let p = state.model.points[i].cast::<f64>();
@@ -193,7 +195,6 @@ fn evidence(
             continue;
         }
         let Some(px) = state.camera.intrinsics.project(&q) else { continue };
-        let (w, h) = (f64::from(state.camera.intrinsics.width), f64::from(state.camera.intrinsics.height));
         if !(px.x >= -0.5 && px.y >= -0.5 && px.x < w - 0.5 && px.y < h - 0.5) {
             continue;
         }
@@ -208,9 +209,18 @@ fn evidence(
         return Err(format!("it would see {} model points (at least {} needed)", seen.len(), params.min_visible));
     }
     let unobserved = unobserved_motions(&seen, params.unobserved_ratio);
-    let view =
-        ChainView { stop: 0, world_from_base: Isometry3::identity(), base_from_ee: *base_from_ee, model_from_camera };
     Ok(Evidence { view, unobserved, visible: seen.len() })
+}
+
+/// A view from the flange pose `base_from_ee` as the chain sees it: at the shot's one base pose
+/// (the robot base), its camera placed on the located model by the hand-eye.
+fn chain_view(state: &ShotState<'_>, base_from_ee: &Isometry3<f64>) -> ChainView {
+    ChainView {
+        stop: 0,
+        world_from_base: Isometry3::identity(),
+        base_from_ee: *base_from_ee,
+        model_from_camera: state.base_from_model.inverse() * base_from_ee * state.prior.ee_from_camera,
+    }
 }
 
 /// The motions (twists `(ω, v)` in the model frame: a point moves at `v + ω × p`) that a
@@ -288,16 +298,7 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
     let base: Vec<Evidence> = state
         .shot_flanges
         .iter()
-        .map(|f| Evidence {
-            view: ChainView {
-                stop: 0,
-                world_from_base: Isometry3::identity(),
-                base_from_ee: *f,
-                model_from_camera: state.base_from_model.inverse() * f * state.prior.ee_from_camera,
-            },
-            unobserved: Vec::new(),
-            visible: 0,
-        })
+        .map(|f| Evidence { view: chain_view(state, f), unobserved: Vec::new(), visible: 0 })
         .collect();
     if base.is_empty() {
         return Err(Error::invalid("shot", "no view registered onto the model: nothing to plan from"));

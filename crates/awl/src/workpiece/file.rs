@@ -69,6 +69,12 @@ pub fn floor_of_fuse(out: &FuseOutput) -> Option<FloorPlane> {
 }
 
 impl Workpiece {
+    /// How far apart the fuse found parts of the model (`hand_eye.rejected_disagreement_mm`), metres;
+    /// 0 without a hand-eye record ([`crate::pierce::PierceParams::model_disagreement_m`]).
+    pub fn model_disagreement_m(&self) -> f64 {
+        self.hand_eye.as_ref().map_or(0.0, crate::pipeline::HandEyeReport::model_disagreement_m)
+    }
+
     /// `T_world_tag`, or an error naming `path` and the field when no view saw the tag.
     ///
     /// # Errors

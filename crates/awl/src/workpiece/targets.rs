@@ -56,6 +56,21 @@ use crate::workpiece::target_spec::TargetSpec;
 /// (`l / sqrt(2)` each) the 2-D 95 % bound is 1.22 `s / l` (BENCHMARKS.md, "Normal bounds").
 pub const TILT_PER_SCATTER: f64 = 0.35;
 
+/// `exp(-|d|² ROUND_PATCH_INV_H2 / radius²)`: a round patch's Gaussian weights, sigma = radius / 2.
+const ROUND_PATCH_INV_H2: f64 = 2.0;
+
+/// A point at offset `d` in a fold's patch (frame `across`, `along`, normal `n`; Gaussian sigmas `s1`
+/// across, `s2` along): its coordinates in sigmas (the height in across-sigmas) and its weight, or
+/// `None` outside the patch (2 sigmas each way, 1 across-sigma off the tangent plane).
+fn fold_coordinates(
+    d: &Vector3<f64>,
+    (across, along, n): (&Vector3<f64>, &Vector3<f64>, &Vector3<f64>),
+    (s1, s2): (f64, f64),
+) -> Option<(f64, f64, f64, f64)> {
+    let (x, y, z) = (d.dot(across) / s1, d.dot(along) / s2, d.dot(n) / s1);
+    (x.abs() <= 2.0 && y.abs() <= 2.0 && z.abs() <= 1.0).then(|| (x, y, z, (-0.5 * (x * x + y * y)).exp()))
+}
+
 /// The points a normal was fitted to: offsets from the target and weights, and whether a cubic
 /// (not a quadric) height field gave it.
 struct Patch {
@@ -398,7 +413,7 @@ impl<'a> SurfaceModel<'a> {
     /// The points within `radius` of `q` and of its tangent plane `n`, with Gaussian weights (sigma
     /// = radius / 2): offsets from `q` and weights.
     fn round_patch(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Vec<(Vector3<f64>, f64)> {
-        let inv_h2 = 2.0 / (radius * radius);
+        let inv_h2 = ROUND_PATCH_INV_H2 / (radius * radius);
         (self.index.within(&q.cast::<f32>(), radius as f32).iter())
             .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
             .filter(|d| d.dot(n).abs() <= radius)
@@ -420,10 +435,7 @@ impl<'a> SurfaceModel<'a> {
         let along = n.cross(&across);
         (self.index.within(&q.cast::<f32>(), (2.0 * s1.hypot(s2)) as f32).iter())
             .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
-            .filter_map(|d| {
-                let (x, y, z) = (d.dot(&across) / s1, d.dot(&along) / s2, d.dot(n) / s1);
-                (x.abs() <= 2.0 && y.abs() <= 2.0 && z.abs() <= 1.0).then(|| (d, (-0.5 * (x * x + y * y)).exp()))
-            })
+            .filter_map(|d| fold_coordinates(&d, (&across, &along, n), (s1, s2)).map(|(.., w)| (d, w)))
             .collect()
     }
 
@@ -433,18 +445,12 @@ impl<'a> SurfaceModel<'a> {
     /// curvature and that curvature's direction. `None` with fewer than 12 points or a degenerate
     /// patch.
     fn quadric_at(&self, q: &Point3<f64>, n: &Vector3<f64>, radius: f64) -> Option<WideQuadric> {
-        let offsets: Vec<Vector3<f64>> = self
-            .index
-            .within(&q.cast::<f32>(), radius as f32)
-            .iter()
-            .map(|nb| self.cloud.points[nb.index as usize].cast::<f64>() - q)
-            .filter(|d| d.dot(n).abs() <= radius)
-            .collect();
+        let offsets: Vec<Vector3<f64>> = self.round_patch(q, n, radius).into_iter().map(|(d, _)| d).collect();
         if offsets.len() < 12 {
             return None;
         }
-        // exp(-|d|^2 inv_h2) with sigma = radius / 2
-        let inv_h2 = 2.0 / (radius * radius);
+        // exp(-|d|^2 inv_h2) with sigma = radius / 2, round_patch's weights
+        let inv_h2 = ROUND_PATCH_INV_H2 / (radius * radius);
         let c = quadric_coefficients(&offsets, &Vector3::zeros(), n, radius, inv_h2)?;
         // the Hessian of the height (in units of the radius): [[2 c3, c4], [c4, 2 c5]]
         let hessian = SymmetricEigen::new(Matrix2::new(2.0 * c[3], c[4], c[4], 2.0 * c[5]));
@@ -491,11 +497,7 @@ impl<'a> SurfaceModel<'a> {
             let (mut ata, mut atb, mut count) = (SMatrix::<f64, 10, 10>::zeros(), SVector::<f64, 10>::zeros(), 0usize);
             for nb in near {
                 let d = self.cloud.points[nb.index as usize].cast::<f64>() - q;
-                // coordinates in sigmas (the height in across-sigmas)
-                let (x, y, z) = (d.dot(&across) / s1, d.dot(&along) / s2, d.dot(&n) / s1);
-                if x.abs() > 2.0 || y.abs() > 2.0 || z.abs() > 1.0 {
-                    continue;
-                }
+                let Some((x, y, z, w)) = fold_coordinates(&d, (&across, &along, &n), (s1, s2)) else { continue };
                 let m = SVector::<f64, 10>::from([
                     1.0,
                     x,
@@ -508,7 +510,6 @@ impl<'a> SurfaceModel<'a> {
                     x * y * y,
                     y * y * y,
                 ]);
-                let w = (-0.5 * (x * x + y * y)).exp();
                 ata += m * m.transpose() * w;
                 atb += m * (w * z);
                 count += 1;
