@@ -419,6 +419,7 @@ fn views_planned_from_a_bank_lower_the_error_as_predicted() {
             &params,
             &two,
             &f.out.model,
+            None,
             &candidates,
             &PlanViewsParams { tolerance, ..PlanViewsParams::default() },
         )

@@ -1,19 +1,23 @@
-//! `awl plan-views WORKPIECE.json --shot DIR --target ... --candidates FILE --tolerance-mm T
-//! [--tolerance-deg D] [--max-views K] -o views.json`: the views a shot still needs for its targets'
-//! predicted errors to meet the tolerance, chosen among given flange poses.
+//! `awl plan-views WORKPIECE.json --shot DIR --target ... [--candidates FILE] --tolerance-mm T
+//! [--tolerance-deg D] [--max-views K] [--robot ARM --tcp FILE [--urscript F] [--techman F]] -o
+//! views.json`: the views a shot still needs for its targets' predicted errors to meet the
+//! tolerance, chosen among given or sampled flange poses, each checked for the arm when one is given.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use awl::io::outputs::{OutputCheck, write_files_atomic};
 use awl::io::scan::read_scan;
+use awl::pierce::ScriptSpeeds;
 use awl::pierce::{LocateParams, PierceParams, plan};
 use awl::plan_views::file::{read_candidates, views_json};
+use awl::plan_views::program::{ViewsProgram, views_techman, views_urscript};
+use awl::plan_views::reach::ViewRobot;
 use awl::plan_views::{PlanViewsParams, plan_after_pierce};
 use awl::workpiece::SurfaceModel;
 use awl::workpiece::json::read_workpiece;
 
-use super::pierce::{TargetArgs, ToleranceArgs, hand_eye_prior, read_model, targets};
+use super::pierce::{RobotArgs, TargetArgs, ToleranceArgs, hand_eye_prior, read_model, robot_setup, targets};
 
 /// Arguments of `awl plan-views`.
 #[derive(clap::Args)]
@@ -28,7 +32,7 @@ pub struct PlanViewsArgs {
     /// The flange poses to choose among (JSON: {"candidates": [{"T_base_ee": 4x4, "why": "..."}]}, or a
     /// view bank's bank.json with T_base_ee_commanded): a cell's taught poses. Default: awl's own,
     /// swings of the shot's first view about the targets and close views of each (their reach is not
-    /// checked with the arm's IK yet: only 0.3-1.1 m from the base).
+    /// checked with --robot; without it only 0.3-1.1 m from the base).
     #[arg(long)]
     pub candidates: Option<PathBuf>,
     #[command(flatten)]
@@ -39,6 +43,19 @@ pub struct PlanViewsArgs {
     /// T_ee_camera from this JSON file instead of the workpiece's or the shot's, as for `awl pierce`.
     #[arg(long)]
     pub hand_eye: Option<PathBuf>,
+    #[command(flatten)]
+    pub robot: RobotArgs,
+    /// Also write a URScript program that visits the views (movej to each view's checked joints, then
+    /// sleep --dwell-s while the view is taken). Needs --robot and the shot's recorded joints (q).
+    #[arg(long)]
+    pub urscript: Option<PathBuf>,
+    /// Also write Techman listen-node packets that visit the views (one PTP packet per view, then
+    /// ScriptExit()). Needs --robot and the shot's recorded joints (q).
+    #[arg(long, alias = "tm")]
+    pub techman: Option<PathBuf>,
+    /// The URScript program's wait at each view, seconds (0-60).
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true)]
+    pub dwell_s: f64,
     /// Output: views.json (awl-views/1).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -60,6 +77,18 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     let params = PlanViewsParams { max_views, tolerance, ..PlanViewsParams::default() };
     params.validate()?;
     let (specs, mut warnings) = targets(&args.targets)?;
+    anyhow::ensure!(args.robot.fixed_spin.is_none(), "--fixed-spin is for awl pierce: a view has no tool spin");
+    anyhow::ensure!(
+        args.dwell_s.is_finite() && (0.0..=awl::plan_views::program::MAX_DWELL_S).contains(&args.dwell_s),
+        "--dwell-s must be 0-{} seconds, got {}",
+        awl::plan_views::program::MAX_DWELL_S,
+        args.dwell_s
+    );
+    let robot = robot_setup(&args.robot)?;
+    anyhow::ensure!(
+        robot.is_some() || (args.urscript.is_none() && args.techman.is_none()),
+        "--urscript and --techman need --robot NAME (or --robot-file) and --tcp: a program's joints are checked for the arm"
+    );
     let given = args.candidates.as_deref().map(read_candidates).transpose().context("--candidates")?;
     let workpiece = read_workpiece(&args.workpiece)?;
     let model_path = args.workpiece.parent().unwrap_or(Path::new(".")).join(&workpiece.model);
@@ -74,12 +103,19 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         (&args.targets.targets_file, "--targets-file"),
         (&args.hand_eye, "--hand-eye"),
         (&args.candidates, "--candidates"),
+        (&args.robot.robot_file, "--robot-file"),
+        (&args.robot.tcp, "--tcp"),
     ] {
         if let Some(p) = path {
             check.input_file(p, what);
         }
     }
     check.output_file(&args.output, "-o");
+    for (path, what) in [(&args.urscript, "--urscript"), (&args.techman, "--techman")] {
+        if let Some(p) = path {
+            check.output_file(p, what);
+        }
+    }
     let _outputs = super::common::lock_outputs(&check)?;
     awl::plan_views::check_one_base(&shot)?;
     let world_from_tag = workpiece.require_world_from_tag(&args.workpiece)?;
@@ -98,12 +134,35 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         Some(c) => c,
         None => awl::plan_views::sample::candidates_after_pierce(&pierce, &shot)?,
     };
-    let views = plan_after_pierce(&pierce, &pierce_params, &shot, &model, &candidates, &params)?;
+    let view_robot = robot.map(|(arm, ee_from_tool, reach)| ViewRobot {
+        body: reach.body,
+        collision: reach.collision,
+        floor: workpiece.floor,
+        ..ViewRobot::new(arm, ee_from_tool)
+    });
+    if view_robot.is_none() {
+        warnings
+            .push("no --robot: the views' reach and collisions are not checked (views.json has no joints)".to_string());
+    }
+    let views = plan_after_pierce(&pierce, &pierce_params, &shot, &model, view_robot.as_ref(), &candidates, &params)?;
     let names: Vec<String> = pierce.targets.iter().map(|t| t.surface.spec.to_string()).collect();
-    let mut json = views_json(&views, &candidates, &names, (tolerance.position_m, tolerance.axis_rad));
+    let arm_name = view_robot.as_ref().map(|r| r.arm.name.clone());
+    let mut json =
+        views_json(&views, &candidates, &names, (tolerance.position_m, tolerance.axis_rad), arm_name.as_deref());
     json["warnings"] = serde_json::json!(warnings);
     let text = serde_json::to_string_pretty(&json)? + "\n";
-    write_files_atomic(&[(args.output.as_path(), text.as_bytes())])?;
+    let mut files: Vec<(&Path, Vec<u8>)> = vec![(args.output.as_path(), text.into_bytes())];
+    if args.urscript.is_some() || args.techman.is_some() {
+        let program = ViewsProgram::of(&views, arm_name.as_deref().unwrap_or_default(), args.dwell_s)?;
+        if let Some(p) = &args.urscript {
+            files.push((p.as_path(), views_urscript(&program, &ScriptSpeeds::default())?.into_bytes()));
+        }
+        if let Some(p) = &args.techman {
+            files.push((p.as_path(), views_techman(&program, &ScriptSpeeds::default())?.into_bytes()));
+        }
+    }
+    let refs: Vec<(&Path, &[u8])> = files.iter().map(|(p, b)| (*p, b.as_slice())).collect();
+    write_files_atomic(&refs)?;
     if !args.quiet {
         for w in &warnings {
             eprintln!("warning: {w}");
@@ -116,10 +175,16 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
         for (k, c) in views.chosen.iter().enumerate() {
             let (p, a) = worst(&c.bounds);
             let bank = candidates[c.candidate].view.map_or(String::new(), |v| format!(" (bank view {v})"));
-            println!("view {}: candidate {}{bank}: worst bounds {p:.2} mm / {a:.2} deg", k + 1, c.candidate);
+            let q = c.reach.map_or(String::new(), |r| {
+                let deg: Vec<String> = r.joints.q.iter().map(|v| format!("{:.1}", v.to_degrees())).collect();
+                format!("; q [{}] deg", deg.join(", "))
+            });
+            println!("view {}: candidate {}{bank}: worst bounds {p:.2} mm / {a:.2} deg{q}", k + 1, c.candidate);
         }
         println!("{}: {}", if views.met { "tolerance met" } else { "tolerance NOT met" }, views.stop);
-        println!("wrote {}", args.output.display());
+        for (p, _) in &files {
+            println!("wrote {}", p.display());
+        }
     }
     Ok(())
 }

@@ -337,12 +337,13 @@ impl Obstacles {
     }
 
     /// The smallest clearance of `capsules` to the model's points (those farther than
-    /// `params.exclude_radius_m` from `target`, within `params.reach_m` of a capsule) and to the
-    /// floor (always). `None` when nothing is within the reach and there is no floor.
+    /// `params.exclude_radius_m` from `target`, when there is one, within `params.reach_m` of a
+    /// capsule) and to the floor (always). `None` when nothing is within the reach and there is no
+    /// floor.
     pub fn clearance(
         &self,
         capsules: &[LinkCapsule],
-        target: &Point3<f64>,
+        target: Option<&Point3<f64>>,
         params: &CollisionParams,
     ) -> Option<Clearance> {
         let mut best: Option<Clearance> = None;
@@ -360,7 +361,7 @@ impl Obstacles {
             let mut smallest = f64::INFINITY;
             for n in near {
                 let p = self.points[n.index as usize].cast::<f64>();
-                if (p - target).norm_squared() <= exclude_sq {
+                if target.is_some_and(|t| (p - t).norm_squared() <= exclude_sq) {
                     continue;
                 }
                 smallest = smallest.min(shape.distance_to_local_point(PVector::new(p.x, p.y, p.z), true));
@@ -403,6 +404,39 @@ impl Obstacles {
         self.check_samples(arm, report, ee_from_tool, body, target, params, true)
     }
 
+    /// A joint-space move (URScript `movej`, Techman `PTP`: every joint from `from` to `to` together,
+    /// the straight line in joint space) checked at its ends and every `step_rad` (radians, at least
+    /// 1e-3) of the joint that moves most: the smallest clearance along it and the first point nearer
+    /// than `params.min_clearance_m` (segment 0, `s` from 0 to 1). No model point is left out.
+    #[allow(clippy::too_many_arguments)]
+    pub fn check_joint_move(
+        &self,
+        arm: &Arm,
+        from: &Joints,
+        to: &Joints,
+        ee_from_tool: &Isometry3<f64>,
+        body: &BodyParams,
+        params: &CollisionParams,
+        step_rad: f64,
+    ) -> PathClearance {
+        let largest = (0..6).map(|k| (to[k] - from[k]).abs()).fold(0.0, f64::max);
+        // joints within +-4 pi move at most 8 pi: at most about 25 000 points
+        let steps = (largest / step_rad.max(1e-3)).ceil().clamp(1.0, 25_000.0) as usize;
+        let mut out = PathClearance { min: None, collision: None, samples_checked: 0 };
+        for i in 0..=steps {
+            let s = i as f64 / steps as f64;
+            let q: Joints = std::array::from_fn(|k| from[k] + (to[k] - from[k]) * s);
+            out.samples_checked += 1;
+            let Some(c) = self.clearance(&capsules(arm, &q, ee_from_tool, body), None, params) else { continue };
+            Clearance::keep_smaller(&mut out.min, c);
+            if c.distance_m < params.min_clearance_m && out.collision.is_none() {
+                out.collision = Some(Collision { segment: 0, s, clearance: c });
+                break;
+            }
+        }
+        out
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn check_samples(
         &self,
@@ -417,7 +451,7 @@ impl Obstacles {
         let mut out = PathClearance { min: None, collision: None, samples_checked: 0 };
         for sample in &report.samples {
             out.samples_checked += 1;
-            let Some(c) = self.clearance(&capsules(arm, &sample.q, ee_from_tool, body), target, params) else {
+            let Some(c) = self.clearance(&capsules(arm, &sample.q, ee_from_tool, body), Some(target), params) else {
                 continue;
             };
             Clearance::keep_smaller(&mut out.min, c);
@@ -498,5 +532,41 @@ mod tests {
         assert!((straight[1].b - Point3::new(0.0, 0.0, -0.16)).norm() < 1e-15);
         let offset = spin_invariant_capsules(&Isometry3::translation(0.03, 0.0, 0.15), &body);
         assert_eq!(offset.iter().map(|c| c.link).collect::<Vec<_>>(), [Link::Tool]);
+    }
+
+    #[test]
+    fn a_joint_move_through_a_wall_is_refused_where_it_hits_and_one_clear_of_it_passes() {
+        let arm = Arm::by_name("ur5e").expect("ur5e");
+        let tool = Isometry3::translation(0.0, 0.0, 0.15);
+        let body = BodyParams::default();
+        let params = CollisionParams::default();
+        let from: Joints = [0.0, -1.2, 1.4, -1.8, -1.57, 0.0];
+        let mut to = from;
+        to[0] = 1.2;
+        // a wall of points in the plane the tool end sweeps through halfway (joint 1 at 0.6 rad)
+        let mid = {
+            let mut q = from;
+            q[0] = 0.6;
+            arm.base_from_flange(&q) * tool * Point3::origin()
+        };
+        let normal = nalgebra::Vector3::new(-(0.6f64).sin(), (0.6f64).cos(), 0.0);
+        let along = normal.cross(&nalgebra::Vector3::z());
+        let mut wall = Vec::new();
+        for i in -20..=20 {
+            for k in -20..=20 {
+                let p = mid + along * (f64::from(i) * 0.005) + nalgebra::Vector3::z() * (f64::from(k) * 0.005);
+                wall.push(p.cast::<f32>());
+            }
+        }
+        let obstacles = Obstacles::new(&wall, None, &Isometry3::identity()).expect("obstacles");
+        let hit = obstacles.check_joint_move(&arm, &from, &to, &tool, &body, &params, 0.5f64.to_radians());
+        let c = hit.collision.expect("the move crosses the wall");
+        assert!(c.s > 0.3 && c.s < 0.55, "hits at {}", c.s);
+        // the same move half way back from the wall: clear, every point checked
+        let mut short = from;
+        short[0] = 0.3;
+        let clear = obstacles.check_joint_move(&arm, &from, &short, &tool, &body, &params, 0.5f64.to_radians());
+        assert!(clear.collision.is_none(), "{:?}", clear.collision);
+        assert_eq!(clear.samples_checked, 35 + 1, "0.3 rad in 0.5 deg steps (34.4, rounded up), both ends");
     }
 }

@@ -69,7 +69,9 @@ fn strokes<'a>(poses: &'a ToolPoses, speeds: &ScriptSpeeds) -> [(&'a Isometry3<f
 }
 
 impl ScriptSpeeds {
-    /// Checks the speeds: finite and positive, tool speeds at most 1 m/s, acceleration at most 5 m/s^2.
+    /// Checks the speeds: finite and positive, tool speeds at most 1 m/s, acceleration at most
+    /// 5 m/s^2, joint speed at most pi rad/s, joint acceleration at most 40 rad/s^2, the Techman
+    /// joint speed 1-100 %.
     ///
     /// # Errors
     /// [`Error::Invalid`] naming the field.
@@ -78,10 +80,18 @@ impl ScriptSpeeds {
             ("travel_m_s", self.travel_m_s, 1.0),
             ("pierce_m_s", self.pierce_m_s, 1.0),
             ("accel_m_s2", self.accel_m_s2, 5.0),
+            ("joint_rad_s", self.joint_rad_s, std::f64::consts::PI),
+            ("joint_rad_s2", self.joint_rad_s2, 40.0),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= max) {
                 return Err(Error::invalid(name, format!("must be in (0, {max}], got {v}")));
             }
+        }
+        if !(1..=100).contains(&self.tm_joint_percent) {
+            return Err(Error::invalid(
+                "tm_joint_percent",
+                format!("must be 1-100 (percent of the top joint speed), got {}", self.tm_joint_percent),
+            ));
         }
         Ok(())
     }
@@ -195,17 +205,23 @@ impl ProgramPlan {
             {
                 check_pose(&name(what), pose, MAX_REACH_M, "the robot base", &arm_reach())?;
             }
-            if let Some(q) = &t.approach_q
-                && let Some(k) = q.iter().position(|v| !(v.is_finite() && v.abs() <= 2.0 * std::f64::consts::PI))
-            {
-                return Err(Error::invalid(
-                    name("q_rad.approach"),
-                    format!("joint {} is {} rad: not a finite angle within +-2 pi", k + 1, q[k]),
-                ));
+            if let Some(q) = &t.approach_q {
+                check_joints(&name("q_rad.approach"), q)?;
             }
         }
         Ok(())
     }
+}
+
+/// Refuses joints `name` that are not finite angles within +-2 pi (radians), what a joint move may carry.
+///
+/// # Errors
+/// [`Error::Invalid`] naming `name` and the joint.
+pub(crate) fn check_joints(name: &str, q: &Joints) -> Result<()> {
+    if let Some(k) = q.iter().position(|v| !(v.is_finite() && v.abs() <= 2.0 * std::f64::consts::PI)) {
+        return Err(Error::invalid(name, format!("joint {} is {} rad: not a finite angle within +-2 pi", k + 1, q[k])));
+    }
+    Ok(())
 }
 
 /// The URScript program of `plan` (module docs); `source` is named in its header comment.
@@ -246,11 +262,7 @@ pub fn urscript_of(program: &ProgramPlan, speeds: &ScriptSpeeds) -> Result<Strin
         }
         match &t.approach_q {
             Some(j) => {
-                let _ = writeln!(
-                    s,
-                    "  movej([{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}], a={}, v={})",
-                    j[0], j[1], j[2], j[3], j[4], j[5], speeds.joint_rad_s2, speeds.joint_rad_s
-                );
+                let _ = writeln!(s, "  {}", ur_movej(j, speeds));
                 for (pose, v) in &strokes(&t.poses, speeds)[1..] {
                     let _ = writeln!(s, "  movel({}, a={}, v={v})", ur(pose), speeds.accel_m_s2);
                 }
@@ -288,7 +300,16 @@ fn tm_line(pose: &Isometry3<f64>, speed_m_s: f64, accel_m_s2: f64) -> String {
     )
 }
 
-fn tm_ptp(q: &Joints, speeds: &ScriptSpeeds) -> String {
+/// URScript's joint move to `q` (radians) at the joint speed and acceleration of `speeds`.
+pub(crate) fn ur_movej(q: &Joints, speeds: &ScriptSpeeds) -> String {
+    format!(
+        "movej([{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}], a={}, v={})",
+        q[0], q[1], q[2], q[3], q[4], q[5], speeds.joint_rad_s2, speeds.joint_rad_s
+    )
+}
+
+/// Techman's joint move to `q` (radians; the packet carries degrees) at `speeds`.
+pub(crate) fn tm_ptp(q: &Joints, speeds: &ScriptSpeeds) -> String {
     let d = q.map(f64::to_degrees);
     let accel_ms = (speeds.joint_rad_s / speeds.joint_rad_s2 * 1e3).round().max(1.0);
     // joint angles in degrees, speed percent, time to top speed in ms, no blending, precise

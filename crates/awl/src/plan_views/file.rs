@@ -12,6 +12,7 @@ use serde_json::{Value, json};
 use crate::error::{Error, Result};
 use crate::io::read_bytes;
 use crate::io::scan::{parse_json, pose_field};
+use crate::kinematics::collision::Clearance;
 use crate::plan_views::{Candidate, ViewPlan};
 use crate::transform::{Rows, rows_from_isometry};
 
@@ -112,25 +113,45 @@ fn bounds_json(bounds: &[(f64, f64)], names: &[String]) -> Value {
 }
 
 /// `views.json` (`awl-views/1`): the proposed views in visiting order, each with its commanded
-/// `T_base_ee`, the bounds of every target once it is taken and why it was chosen; the bounds before
-/// and after, whether they meet the tolerance, and why the plan stops there.
+/// `T_base_ee`, its joints `q` (radians; null when no arm was given) and what they were checked for
+/// (the arm, the configuration, the joint limit margin, the clearances at the view and along the
+/// joint move to it, mm), the bounds of every target once it is taken and why it was chosen; the
+/// joints the first move starts from (`start_q`, and whether the shot recorded them), the bounds
+/// before and after, whether they meet the tolerance, and why the plan stops there.
 pub fn views_json(
     plan: &ViewPlan,
     candidates: &[Candidate],
     target_names: &[String],
     tolerance: (Option<f64>, Option<f64>),
+    arm: Option<&str>,
 ) -> Value {
+    let mm = |c: &Option<Clearance>| {
+        c.map(|c| json!({ "mm": c.distance_m * 1e3, "link": c.link.name(), "against": c.against.name() }))
+    };
     let views: Vec<Value> = plan
         .chosen
         .iter()
         .map(|c| {
             let cand = &candidates[c.candidate];
+            let (q, reach) = match (&c.reach, arm) {
+                (Some(r), Some(arm)) => (
+                    json!(r.joints.q),
+                    json!({
+                        "arm": arm,
+                        "configuration": r.joints.branch.to_string(),
+                        "limit_margin_deg": r.joints.limit_margin_rad.to_degrees(),
+                        "clearance": mm(&r.joints.clearance),
+                        "move_clearance": mm(&r.move_clearance),
+                    }),
+                ),
+                _ => (Value::Null, json!("not checked: give --robot and --tcp")),
+            };
             json!({
                 "candidate": c.candidate,
                 "bank_view": cand.view,
                 "T_base_ee": rows_from_isometry(&cand.base_from_ee),
-                "q": Value::Null,
-                "reach": "not checked (give a robot with a later awl; the candidates are taken as reachable)",
+                "q": q,
+                "reach": reach,
                 "visible_model_points": c.visible,
                 "unobserved_motions": c.unobserved,
                 "bounds_after": bounds_json(&c.bounds, target_names),
@@ -147,6 +168,7 @@ pub fn views_json(
         "bounds_before": bounds_json(&plan.before, target_names),
         "views": views,
         "bounds_after": bounds_json(after, target_names),
+        "start_q": plan.start.map(|(q, recorded)| json!({ "q": q, "recorded": recorded })),
         "met": plan.met,
         "stop": plan.stop,
         "left_out": plan.left_out.iter().map(|(i, why)| json!({ "candidate": i, "bank_view": candidates[*i].view, "why": why })).collect::<Vec<_>>(),

@@ -15,10 +15,15 @@
 //! little of the model is left out, with the reason.
 //!
 //! Candidates are given (a cell's taught poses, a view bank) or sampled around the shot
-//! ([`sample`]). Not yet: the arm's inverse kinematics and collision checks on them, and the targets'
-//! local surfaces measured from close views (the axis bound falls only by the located rotation).
+//! ([`sample`]). With an arm ([`ShotState::arm`]), a candidate is used only when the arm reaches it
+//! in a configuration clear of the workpiece and the shot's depth, and a view is chosen only when the
+//! joint move to it from the one before (the first from the shot's joints) is clear ([`reach`]).
+//! Not yet: the targets' local surfaces measured from close views (the axis bound falls only by the
+//! located rotation).
 
 pub mod file;
+pub mod program;
+pub mod reach;
 pub mod sample;
 
 use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
@@ -27,7 +32,10 @@ use crate::camera::DepthCamera;
 use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::handeye::chain::{ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain_observed};
+use crate::kinematics::Joints;
+use crate::kinematics::collision::{Clearance, Obstacles};
 use crate::pierce::predict::{PredictParams, TargetGeometry, Tolerance, predict};
+use crate::plan_views::reach::{ViewArm, ViewJoints, ViewRobot, view_obstacles};
 use crate::spatial::KdIndex;
 
 /// A flange pose the arm could take for one more view.
@@ -121,6 +129,33 @@ pub struct ShotState<'a> {
     pub targets: Vec<TargetGeometry>,
     /// The bounds' probability and the model's share.
     pub predict: PredictParams,
+    /// The arm the views are checked for, and its obstacles; `None`: not checked.
+    pub arm: Option<ArmCheck<'a>>,
+}
+
+/// The arm at the shot and what it must stay clear of.
+#[derive(Clone, Copy)]
+pub struct ArmCheck<'a> {
+    /// The arm, its tool and its joints at the shot.
+    pub arm: &'a ViewArm,
+    /// The model, its floor and the shot's depth points, base frame.
+    pub obstacles: &'a Obstacles,
+}
+
+impl std::fmt::Debug for ArmCheck<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ArmCheck").field("arm", &self.arm.arm.name).field("obstacles", &self.obstacles.len()).finish()
+    }
+}
+
+/// A chosen view's joints and the move to it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewReach {
+    /// The joints at the view.
+    pub joints: ViewJoints,
+    /// The smallest clearance of the joint move to it from the view before (the first from the
+    /// shot's joints); `None`: nothing within the collision reach.
+    pub move_clearance: Option<Clearance>,
 }
 
 /// Each target's predicted 95 % bounds: position (m), axis (rad).
@@ -139,6 +174,8 @@ pub struct ChosenView {
     pub bounds: Bounds,
     /// Why it was chosen.
     pub why: String,
+    /// With an arm: its joints and the move to it.
+    pub reach: Option<ViewReach>,
 }
 
 /// The plan.
@@ -154,6 +191,9 @@ pub struct ViewPlan {
     pub stop: String,
     /// Candidates left out, and why.
     pub left_out: Vec<(usize, String)>,
+    /// With an arm: its joints at the shot (radians), where the first move starts, and whether the
+    /// shot recorded them.
+    pub start: Option<(Joints, bool)>,
 }
 
 /// What one candidate would add.
@@ -161,6 +201,7 @@ struct Evidence {
     view: ChainView,
     unobserved: Vec<Vector6<f64>>,
     visible: usize,
+    joints: Option<ViewJoints>,
 }
 
 /// The candidate's view onto the model, or why it cannot be used.
@@ -209,7 +250,11 @@ fn evidence(
         return Err(format!("it would see {} model points (at least {} needed)", seen.len(), params.min_visible));
     }
     let unobserved = unobserved_motions(&seen, params.unobserved_ratio);
-    Ok(Evidence { view, unobserved, visible: seen.len() })
+    let joints = match &state.arm {
+        Some(a) => Some(a.arm.joints_of(base_from_ee, a.obstacles)?),
+        None => None,
+    };
+    Ok(Evidence { view, unobserved, visible: seen.len(), joints })
 }
 
 /// A view from the flange pose `base_from_ee` as the chain sees it: at the shot's one base pose
@@ -298,7 +343,7 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
     let base: Vec<Evidence> = state
         .shot_flanges
         .iter()
-        .map(|f| Evidence { view: chain_view(state, f), unobserved: Vec::new(), visible: 0 })
+        .map(|f| Evidence { view: chain_view(state, f), unobserved: Vec::new(), visible: 0, joints: None })
         .collect();
     if base.is_empty() {
         return Err(Error::invalid("shot", "no view registered onto the model: nothing to plan from"));
@@ -315,6 +360,8 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
     let mut chosen: Vec<ChosenView> = Vec::new();
     let mut taken: Vec<usize> = Vec::new();
     let mut current = before.clone();
+    let mut at = state.arm.map(|a| a.arm.start);
+    let mut move_refused: Vec<(usize, String)> = Vec::new();
     let stop = loop {
         let now = excess(&current, &params.tolerance);
         if now <= 1.0 {
@@ -328,7 +375,7 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
             break format!("{} views chosen (--max-views); the tolerance is not met", params.max_views);
         }
         let picked: Vec<&Evidence> = taken.iter().map(|&k| &usable[k].1).collect();
-        let mut best: Option<(usize, f64, Bounds)> = None;
+        let mut scored: Vec<(usize, f64, Bounds)> = Vec::new();
         for (k, (_, e)) in usable.iter().enumerate() {
             if taken.contains(&k) {
                 continue;
@@ -336,13 +383,32 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
             let mut with = picked.clone();
             with.push(e);
             let b = bounds_with(state, &base, &with)?;
-            let x = excess(&b, &params.tolerance);
-            if best.as_ref().is_none_or(|(_, bx, _)| x < *bx) {
-                best = Some((k, x, b));
-            }
+            scored.push((k, excess(&b, &params.tolerance), b));
         }
-        match best {
-            Some((k, x, b)) if x <= now * (1.0 - params.min_gain) => {
+        // the best first, ties in the candidates' order
+        scored.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let mut pick = None;
+        for (k, x, b) in scored {
+            if x > now * (1.0 - params.min_gain) {
+                break;
+            }
+            let reach = match (&state.arm, &usable[k].1.joints, &at) {
+                (Some(a), Some(j), Some(from)) => match a.arm.check_move(from, &j.q, a.obstacles) {
+                    Ok(move_clearance) => Some(ViewReach { joints: *j, move_clearance }),
+                    Err(why) => {
+                        let from =
+                            if chosen.is_empty() { "the shot".to_string() } else { format!("view {}", chosen.len()) };
+                        move_refused.push((usable[k].0, format!("from {from}: {why}")));
+                        continue;
+                    }
+                },
+                _ => None,
+            };
+            pick = Some((k, x, b, reach));
+            break;
+        }
+        match pick {
+            Some((k, x, b, reach)) => {
                 let (index, e) = &usable[k];
                 chosen.push(ChosenView {
                     candidate: *index,
@@ -360,14 +426,31 @@ pub fn plan_views(state: &ShotState<'_>, candidates: &[Candidate], params: &Plan
                         }
                     ),
                     bounds: b.clone(),
+                    reach,
                 });
+                if let Some(r) = reach {
+                    at = Some(r.joints.q);
+                }
                 taken.push(k);
                 current = b;
             }
-            _ => break "no usable candidate lowers the worst target's bound further".to_string(),
+            None => break "no usable candidate lowers the worst target's bound further".to_string(),
         }
     };
-    Ok(ViewPlan { met: excess(&current, &params.tolerance) <= 1.0, before, chosen, stop, left_out })
+    for (i, why) in move_refused {
+        if !chosen.iter().any(|c| c.candidate == i) && !left_out.iter().any(|(j, _)| *j == i) {
+            left_out.push((i, why));
+        }
+    }
+    left_out.sort_by_key(|(i, _)| *i);
+    Ok(ViewPlan {
+        met: excess(&current, &params.tolerance) <= 1.0,
+        before,
+        chosen,
+        stop,
+        left_out,
+        start: state.arm.map(|a| (a.arm.start, a.arm.start_recorded)),
+    })
 }
 
 /// The shot's depth points, base frame, on a 1 cm grid (the obstacles of [`ShotState`]).
@@ -417,16 +500,20 @@ pub fn check_one_base(shot: &crate::scan::Scan) -> Result<()> {
 }
 
 /// [`plan_views`] after a pierce of the shot's views (`pierce`, planned with `params`): its located
-/// pose, the hand-eye it used and the shot's views that registered, its targets.
+/// pose, the hand-eye it used and the shot's views that registered, its targets; with `robot`, every
+/// view and move checked for it from the shot's recorded joints (views[i].q), else from the
+/// configuration of its last view that [`ViewArm::at_shot`] chooses.
 ///
 /// # Errors
 /// [`Error::Invalid`] when the shot has no camera or its views were not combined with the hand-eye
 /// (no flange poses, or none registered onto the model); any error of [`plan_views`].
+#[allow(clippy::too_many_arguments)]
 pub fn plan_after_pierce(
     pierce: &crate::pierce::PiercePlan,
     pierce_params: &crate::pierce::PierceParams,
     shot: &crate::scan::Scan,
     model: &PointCloud,
+    robot: Option<&ViewRobot>,
     candidates: &[Candidate],
     params: &PlanViewsParams,
 ) -> Result<ViewPlan> {
@@ -452,6 +539,19 @@ pub fn plan_after_pierce(
         None => crate::pierce::HandEyePrior::recorded(h.prior).prior,
     };
     let obstacles = shot_obstacles(shot)?;
+    let arm = match robot {
+        Some(r) => {
+            let mut body = r.body;
+            body.ee_from_camera = Some(prior.ee_from_camera);
+            let placed =
+                view_obstacles(model, r.floor, &pierce.located.base_from_model, &obstacles, r.obstacle_voxel_m)?;
+            let last = shot_flanges.last().copied().ok_or_else(|| shot_error("no view registered onto the model"))?;
+            let recorded = crate::pierce::reach::shot_joints(shot)?;
+            let arm = ViewArm::at_shot(r.arm.clone(), r.ee_from_tool, body, r.collision, recorded, &last, &placed)?;
+            Some((arm, placed))
+        }
+        None => None,
+    };
     let state = ShotState {
         base_from_model: pierce.located.base_from_model,
         prior,
@@ -466,6 +566,7 @@ pub fn plan_after_pierce(
             .map(|t| crate::pierce::target_geometry(&t.surface, &t.axis_base, pierce_params))
             .collect(),
         predict: pierce_params.predict,
+        arm: arm.as_ref().map(|(arm, obstacles)| ArmCheck { arm, obstacles }),
     };
     plan_views(&state, candidates, params)
 }

@@ -3,8 +3,9 @@
 //! packet ([`check_techman_statements`]) must be one of them. `awl send` checks both before a byte
 //! leaves, so no program it sends carries a statement awl does not write, whatever plan.json says.
 //!
-//! URScript: `def awl_pierce():`, `end`, and indented by two spaces: a comment `# ` of printable
-//! ASCII, `set_tcp(p[6 numbers])`, `movej([6 numbers], a=N, v=N)`, `movel(p[6 numbers], a=N, v=N)`.
+//! URScript: `def awl_pierce():` (or `def awl_views():`, the views of `awl plan-views`), `end`, and
+//! indented by two spaces: a comment `# ` of printable ASCII, `set_tcp(p[6 numbers])`,
+//! `movej([6 numbers], a=N, v=N)`, `movel(p[6 numbers], a=N, v=N)`, `sleep(N)`.
 //! Techman: `ChangeBase("RobotBase")`, `ChangeTCP(6 numbers)`, `PTP("JPP",6 numbers,N,N,0,true)`,
 //! `Line("CAP",6 numbers,N,N,0,true)`, `ScriptExit()`. A number is a finite decimal: an optional
 //! `-`, digits, optionally `.` and digits.
@@ -45,6 +46,9 @@ fn ur_statement(line: &str) -> bool {
     if let Some(pose) = between(line, "set_tcp(p[", "])") {
         return numbers(pose, 6, ", ");
     }
+    if let Some(seconds) = between(line, "sleep(", ")") {
+        return is_number(seconds);
+    }
     let motion = |prefix: &str, close: &str| {
         between(line, prefix, ")")
             .and_then(|r| r.split_once(close))
@@ -62,7 +66,7 @@ pub fn check_urscript_statements(program: &str) -> Result<()> {
     let last = lines.len().saturating_sub(1);
     for (i, line) in lines.iter().enumerate() {
         let ok = match i {
-            0 => *line == "def awl_pierce():",
+            0 => *line == "def awl_pierce():" || *line == "def awl_views():",
             _ if i == last => line.is_empty(),
             _ if i + 1 == last => *line == "end",
             _ => line.strip_prefix("  ").is_some_and(ur_statement),
@@ -130,6 +134,9 @@ mod tests {
                     0.150000, 0.000000, 0.000000, 0.000000])\n  movej([0.1, -1.2, 1.4, -1.8, -1.57, 0.4], a=1, v=0.5)\n  \
                     movel(p[0.45, 0.15, 0.11, 3.141593, 0.0, 0.0], a=0.5, v=0.02)\nend\n";
         check_urscript_statements(good).expect("awl's own");
+        // the views program of awl plan-views: its header and the wait at each view
+        let views = good.replace("def awl_pierce", "def awl_views").replace("end\n", "  sleep(2.000)\nend\n");
+        check_urscript_statements(&views).expect("awl's own views program");
         for bad in [
             good.replace("# awl pierce", "# x\n  movej([0,0,0,0,0,0], a=3, v=3)\n  #"),
             good.replace("# awl", "# \u{202e}awl"),
@@ -141,6 +148,9 @@ mod tests {
             good.replace("  movej", "  popup(\"x\")\n  movej"),
             good.replace("def awl_pierce", "def other"),
             good.replace("end\n", "end\nawl_pierce()\n"),
+            good.replace("end\n", "  sleep(x)\nend\n"),
+            good.replace("end\n", "  sleep(-)\nend\n"),
+            good.replace("end\n", "  sleep(2.0); popup(\"x\")\nend\n"),
         ] {
             let e = check_urscript_statements(&bad).expect_err(&bad).to_string();
             assert!(e.contains("is not a statement awl writes"), "{e}");

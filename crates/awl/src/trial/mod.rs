@@ -246,12 +246,13 @@ pub struct ShotSetup {
 const TRIAL_TOLERANCE_M: f64 = 0.001;
 
 /// The flange poses `awl plan-views` proposes after `planned` (up to `max_views`, among the
-/// candidates sampled around the shot's first view and the targets).
+/// candidates sampled around the shot's first view and the targets), checked for `robot` when given.
 fn planned_flanges(
     planned: &crate::pierce::PiercePlan,
     params: &PierceParams,
     shot: &crate::scan::Scan,
-    model: &crate::cloud::PointCloud,
+    wp: &TrialWorkpiece,
+    robot: Option<&TrialRobot>,
     max_views: usize,
 ) -> Result<Vec<Isometry3<f64>>> {
     let candidates = crate::plan_views::sample::candidates_after_pierce(planned, shot)?;
@@ -263,7 +264,21 @@ fn planned_flanges(
         tolerance: crate::pierce::Tolerance { position_m: Some(TRIAL_TOLERANCE_M), axis_rad: None },
         ..crate::plan_views::PlanViewsParams::default()
     };
-    let views = crate::plan_views::plan_after_pierce(planned, params, shot, model, &candidates, &views_params)?;
+    let robot = robot.map(|r| crate::plan_views::reach::ViewRobot {
+        body: r.params.body,
+        collision: r.params.collision,
+        floor: wp.floor,
+        ..crate::plan_views::reach::ViewRobot::new(r.arm.clone(), r.ee_from_tool)
+    });
+    let views = crate::plan_views::plan_after_pierce(
+        planned,
+        params,
+        shot,
+        &wp.model,
+        robot.as_ref(),
+        &candidates,
+        &views_params,
+    )?;
     Ok(views.chosen.iter().map(|c| candidates[c.candidate].base_from_ee).collect())
 }
 
@@ -296,7 +311,7 @@ pub fn run_shot(wp: &TrialWorkpiece, setup: &ShotSetup, k: usize, dir: &Path) ->
     let mut planned = plan(&surface, &wp.tag, &wp.world_from_tag, &shot, std::slice::from_ref(&wp.spec), params)?;
     let mut planned_views = 0;
     if setup.plan_views > 0 {
-        let flanges = planned_flanges(&planned, params, &shot, &wp.model, setup.plan_views)?;
+        let flanges = planned_flanges(&planned, params, &shot, wp, setup.robot.as_ref(), setup.plan_views)?;
         if !flanges.is_empty() {
             planned_views = flanges.len();
             let sim_params =
