@@ -359,8 +359,14 @@ fn the_capture_calibration_corrects_the_corner_bias_to_within_1_mm() {
         write_simulation(dir.path(), &sim, false).expect("write");
         let capture = awl::io::capture::read_capture(dir.path()).expect("read");
         let truth = sim.truth.ee_from_camera.expect("true T_ee_camera");
+        // the views weighted alike, as when these were measured (weighted by their covariance:
+        // tests/capture_bound.rs)
         let run = |corner_bias| {
-            let params = awl::handeye::CaptureParams { corner_bias, ..awl::handeye::CaptureParams::default() };
+            let params = awl::handeye::CaptureParams {
+                corner_bias,
+                view_weights: false,
+                ..awl::handeye::CaptureParams::default()
+            };
             awl::handeye::calibrate_capture(&capture, &params).expect("calibrate")
         };
         let (with, without) = (run(true), run(false));
@@ -378,8 +384,11 @@ fn the_capture_calibration_corrects_the_corner_bias_to_within_1_mm() {
         assert!((0.1..=0.25).contains(&bias), "seed {seed}: bias {bias} px (measured radially: 0.21 px)");
         assert!(without.corner_bias_px.is_none() && without.corner_bias_note.contains("off"));
         // depths that do not spread enough (here: a ratio asked for that the 0.36-0.69 m views lack)
-        let params =
-            awl::handeye::CaptureParams { corner_bias_min_depth_ratio: 3.0, ..awl::handeye::CaptureParams::default() };
+        let params = awl::handeye::CaptureParams {
+            corner_bias_min_depth_ratio: 3.0,
+            view_weights: false,
+            ..awl::handeye::CaptureParams::default()
+        };
         let alike = awl::handeye::calibrate_capture(&capture, &params).expect("calibrate");
         assert!(alike.corner_bias_px.is_none(), "{:?}", alike.corner_bias_px);
         assert!(alike.corner_bias_note.contains("depths span"), "{}", alike.corner_bias_note);

@@ -63,6 +63,20 @@ pub struct HandEyeArgs {
     /// corner bias from the views' spread of depths.
     #[arg(long, requires = "capture")]
     pub no_corner_bias: bool,
+    /// With --capture: weigh every view alike (rotation by --rotation-weight-m) instead of by its
+    /// covariance (the tag pose's from its corners, and the arm's).
+    #[arg(long, requires = "capture")]
+    pub no_view_weights: bool,
+    /// With --capture: the detected tag corners' noise per image axis, pixels (the views' weights and
+    /// the predicted bound).
+    #[arg(long, requires = "capture", default_value_t = CaptureParams::default().corner_sigma_px)]
+    pub corner_sigma_px: f64,
+    /// With --capture: the recorded flange pose's translation noise per axis, mm (the arm's repeatability).
+    #[arg(long, requires = "capture", default_value_t = CaptureParams::default().arm_sigma_mm)]
+    pub arm_sigma_mm: f64,
+    /// With --capture: the recorded flange pose's rotation noise per axis, degrees.
+    #[arg(long, requires = "capture", default_value_t = CaptureParams::default().arm_sigma_deg)]
+    pub arm_sigma_deg: f64,
     /// Output JSON: T_ee_camera, T_base_target, method, per-pose residuals, rejected poses, warnings.
     #[arg(short, long, required_unless_present = "write_simulated")]
     pub output: Option<PathBuf>,
@@ -309,6 +323,8 @@ fn capture_json(dir: &Path, capture: &CaptureCalibration, params: &CaptureParams
         "thorough_search": capture.thorough_search,
         "corner_bias_px": capture.corner_bias_px,
         "corner_bias_note": capture.corner_bias_note,
+        "bound": capture.bound,
+        "view_weights": params.view_weights,
         "detector": params.detector,
         "max_rmse_px": params.max_rmse_px,
         "min_side_px": params.min_side_px,
@@ -331,6 +347,10 @@ fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
     let params = CaptureParams {
         handeye: handeye_params(args)?,
         corner_bias: !(args.no_corner_bias || args.no_refine),
+        view_weights: !args.no_view_weights,
+        corner_sigma_px: args.corner_sigma_px,
+        arm_sigma_mm: args.arm_sigma_mm,
+        arm_sigma_deg: args.arm_sigma_deg,
         ..CaptureParams::default()
     };
     let calibration = calibrate_capture(&capture, &params)
@@ -392,6 +412,31 @@ fn hand_eye_capture(args: &HandEyeArgs, dir: &Path) -> anyhow::Result<()> {
             .collect::<Vec<_>>(),
         output.display()
     );
+    match &calibration.bound {
+        Some(b) => println!(
+            "predicted error (95 %): {:.2} mm / {:.3} deg (RMS {:.2} mm / {:.3} deg; per axis {:.2}, {:.2}, {:.2} mm \
+             and {:.3}, {:.3}, {:.3} deg), from {} views {}, corners {} px, arm {} mm / {} deg a view; residuals \
+             {:.2}x the assumed noise{}",
+            b.translation_mm,
+            b.rotation_deg,
+            b.translation_rms_mm,
+            b.rotation_rms_deg,
+            b.translation_sigma_mm[0],
+            b.translation_sigma_mm[1],
+            b.translation_sigma_mm[2],
+            b.rotation_sigma_deg[0],
+            b.rotation_sigma_deg[1],
+            b.rotation_sigma_deg[2],
+            b.views,
+            if b.weighted { "weighted by their covariance" } else { "weighted alike" },
+            b.corner_sigma_px,
+            b.arm_sigma_mm,
+            b.arm_sigma_deg,
+            b.normalized_cost.sqrt(),
+            if b.noise_scale > 1.0 { " (the bound widened by as much)" } else { "" }
+        ),
+        None => println!("predicted error: none without the refinement"),
+    }
     for w in &result.warnings {
         eprintln!("warning: {w} (poses are the views found, in order)");
     }

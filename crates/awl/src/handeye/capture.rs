@@ -26,13 +26,23 @@
 //!    Where the views' tag depths spread enough to tell it from the hand-eye's translation
 //!    (`corner_bias_min_depth_ratio`), `κ` is the minimiser of the refinement's cost
 //!    (profiled: golden section over `|b| <= corner_bias_max_px`), the translations are corrected
-//!    and the calibration runs again on them.
+//!    and the calibration runs again on them;
+//! 6. each view's residual is weighted by its covariance (`view_weights`): the tag pose from 4
+//!    corners (`corner_sigma_px`) knows its depth far worse than its lateral position, and the
+//!    recorded flange pose carries the arm's noise (`arm_sigma_mm`, `arm_sigma_deg`); from the
+//!    same model the calibration predicts its own error, [`CaptureCalibration::bound`] (a 95 %
+//!    bound on `T_ee_camera`'s translation and rotation; `handeye::capture_bound`). The weights are
+//!    computed at the first, unweighted solution (step 3) and used from step 5 on.
 
-use nalgebra::{Isometry3, UnitQuaternion};
+use nalgebra::{Isometry3, Matrix6, UnitQuaternion};
 use serde::Serialize;
 
 use crate::camera::PixelRect;
 use crate::error::{Error, Result};
+use crate::handeye::capture_bound::{
+    BoundInput, CaptureBound, ViewNoise, predict, tag_pose_covariance, view_covariance, view_whitening,
+};
+use crate::handeye::solve::calibrate_weighted;
 use crate::handeye::{HandEyeParams, HandEyePose, HandEyeResult, PoseResidual, calibrate};
 use crate::io::capture::Capture;
 use crate::tag::SUPPORTED_FAMILY;
@@ -58,6 +68,17 @@ pub struct CaptureParams {
     pub corner_bias_min_depth_ratio: f64,
     /// The largest corner bias searched, pixels (each way). Default 1.
     pub corner_bias_max_px: f64,
+    /// Weight each view's residual by its covariance (item 6 of the module docs). Default true.
+    pub view_weights: bool,
+    /// The detected tag corners' noise per image axis, pixels (the views' weights and the bound).
+    /// Default 0.2.
+    pub corner_sigma_px: f64,
+    /// The recorded flange pose's translation noise per axis (flange frame), millimetres. Default
+    /// 0.6 (awl's simulator; the other simulator's recorded poses scatter 0.61-0.65 mm).
+    pub arm_sigma_mm: f64,
+    /// The recorded flange pose's rotation noise per axis, degrees. Default 0.06 (awl's simulator;
+    /// the other's: 0.068).
+    pub arm_sigma_deg: f64,
 }
 
 impl Default for CaptureParams {
@@ -70,6 +91,10 @@ impl Default for CaptureParams {
             corner_bias: true,
             corner_bias_min_depth_ratio: 1.2,
             corner_bias_max_px: 1.0,
+            view_weights: true,
+            corner_sigma_px: 0.2,
+            arm_sigma_mm: 0.6,
+            arm_sigma_deg: 0.06,
         }
     }
 }
@@ -132,6 +157,10 @@ pub struct CaptureCalibration {
     pub corner_bias_px: Option<f64>,
     /// Why it was not estimated (empty when it was).
     pub corner_bias_note: String,
+    /// The calibration's own predicted error: 95 % bounds on `T_ee_camera`'s translation (mm) and
+    /// rotation (deg) from the views' noise (item 6 of the module docs); `None` when refinement is
+    /// off (the closed form's error is larger).
+    pub bound: Option<CaptureBound>,
 }
 
 /// A view where the tag was found: its pose, and the other solution while the choice is open.
@@ -400,13 +429,46 @@ pub fn calibrate_capture(capture: &Capture, params: &CaptureParams) -> Result<Ca
             ),
         ));
     }
+    let noise = params.view_noise()?;
     let detected = poses_of(capture, &seen);
-    let (mut poses, mut corner_bias_px, mut corner_bias_note) = (detected.clone(), None, String::new());
+    let tag_covariances = (detected.iter().zip(&seen))
+        .map(|(p, s)| {
+            tag_pose_covariance(&capture.intrinsics, tag.size_m, &p.camera_from_target, noise.corner_sigma_px)
+                .ok_or_else(|| {
+                    Error::field(
+                        &manifest,
+                        "views",
+                        format!(
+                            "view {}: the tag's 4 corners do not fix its pose (a corner behind the camera?)",
+                            s.view
+                        ),
+                    )
+                })
+        })
+        .collect::<Result<Vec<Matrix6<f64>>>>()?;
+    let covariances = |poses: &[HandEyePose], result: &HandEyeResult| -> Vec<Matrix6<f64>> {
+        (poses.iter().zip(&tag_covariances))
+            .map(|(p, c)| view_covariance(p, &result.ee_from_camera, &result.base_from_target, c, &noise))
+            .collect()
+    };
+    let white = if params.view_weights && params.handeye.refine {
+        let w = (covariances(&detected, &result).iter().zip(&seen))
+            .map(|(c, s)| view_whitening(c, &format!("view {}", s.view)))
+            .collect::<Result<Vec<_>>>()?;
+        result = calibrate_weighted(&detected, Some(&w), &params.handeye).map_err(|e| {
+            Error::field(&manifest, "views", format!("calibration from the views {views:?} weighted failed: {e}"))
+        })?;
+        Some(w)
+    } else {
+        None
+    };
+    let (mut poses, mut corner_bias_px, mut corner_bias_note, mut kappa) =
+        (detected.clone(), None, String::new(), None);
     if params.corner_bias {
-        match corner_bias(capture, &detected, &result, params) {
-            Ok(kappa) => {
-                let corrected = scaled_by_depth(&detected, kappa);
-                result = calibrate(&corrected, &params.handeye).map_err(|e| {
+        match corner_bias(capture, &detected, &result, white.as_deref(), params) {
+            Ok(k) => {
+                let corrected = scaled_by_depth(&detected, k);
+                result = calibrate_weighted(&corrected, white.as_deref(), &params.handeye).map_err(|e| {
                     Error::field(
                         &manifest,
                         "views",
@@ -414,13 +476,33 @@ pub fn calibrate_capture(capture: &Capture, params: &CaptureParams) -> Result<Ca
                     )
                 })?;
                 poses = corrected;
-                corner_bias_px = Some(kappa * capture.intrinsics.fx * tag.size_m / 2.0);
+                corner_bias_px = Some(k * capture.intrinsics.fx * tag.size_m / 2.0);
+                kappa = Some(k);
             }
             Err(why) => corner_bias_note = why,
         }
     } else {
         corner_bias_note = "not estimated (corner_bias off)".into();
     }
+    let bound = params.handeye.refine.then(|| {
+        let inlier = |k: &usize| !result.rejected.contains(k);
+        let keep = |v: &[HandEyePose]| -> Vec<HandEyePose> { (0..v.len()).filter(inlier).map(|k| v[k]).collect() };
+        let (kept, kept_detected) = (keep(&poses), keep(&detected));
+        let all_covariances = covariances(&poses, &result);
+        let kept_covariances: Vec<Matrix6<f64>> = (0..poses.len()).filter(inlier).map(|k| all_covariances[k]).collect();
+        let kept_white: Option<Vec<Matrix6<f64>>> =
+            white.as_ref().map(|w| (0..poses.len()).filter(inlier).map(|k| w[k]).collect());
+        let input = BoundInput {
+            poses: &kept,
+            covariances: &kept_covariances,
+            whitening: kept_white.as_deref(),
+            rotation_weight_m: params.handeye.rotation_weight_m,
+            x: result.ee_from_camera,
+            y: result.base_from_target,
+            corner_bias: kappa.map(|k| (kept_detected.as_slice(), k)),
+        };
+        predict(&input, &noise)
+    });
     for (k, s) in seen.iter().enumerate() {
         let report = &mut reports[s.view];
         report.solution = Some(if s.use_second && s.pose.second.is_some() { 2 } else { 1 });
@@ -430,7 +512,24 @@ pub fn calibrate_capture(capture: &Capture, params: &CaptureParams) -> Result<Ca
         report.pose = Some(k);
         report.residual = result.residuals.get(k).copied();
     }
-    Ok(CaptureCalibration { views: reports, poses, result, thorough_search, corner_bias_px, corner_bias_note })
+    Ok(CaptureCalibration { views: reports, poses, result, thorough_search, corner_bias_px, corner_bias_note, bound })
+}
+
+impl CaptureParams {
+    /// The views' noise (module docs, item 6), checked.
+    fn view_noise(&self) -> Result<ViewNoise> {
+        let (px, mm, deg) = (self.corner_sigma_px, self.arm_sigma_mm, self.arm_sigma_deg);
+        if !(px.is_finite() && px > 0.0) {
+            return Err(Error::invalid("corner_sigma_px", format!("must be a positive number of pixels, got {px}")));
+        }
+        if !(mm.is_finite() && mm >= 0.0 && deg.is_finite() && deg >= 0.0) {
+            return Err(Error::invalid(
+                "arm_sigma_mm / arm_sigma_deg",
+                format!("must be non-negative numbers, got {mm} mm and {deg} deg"),
+            ));
+        }
+        Ok(ViewNoise { corner_sigma_px: px, arm_sigma_m: mm * 1e-3, arm_sigma_rad: deg.to_radians() })
+    }
 }
 
 /// Each pose's tag translation divided by `1 + kappa z` (`z` its depth, metres; `kappa` per metre).
@@ -446,15 +545,20 @@ fn scaled_by_depth(poses: &[HandEyePose], kappa: f64) -> Vec<HandEyePose> {
 }
 
 /// The depth scale `κ` (per metre) of the detector's corner bias that minimises the refinement's
-/// cost over `result`'s inliers (golden section), or why it is not estimated.
+/// cost (whitened by `white` when given) over `result`'s inliers (golden section), or why it is not
+/// estimated.
 fn corner_bias(
     capture: &Capture,
     poses: &[HandEyePose],
     result: &HandEyeResult,
+    white: Option<&[Matrix6<f64>]>,
     params: &CaptureParams,
 ) -> std::result::Result<f64, String> {
     let inliers: Vec<HandEyePose> =
         (poses.iter().enumerate()).filter(|(k, _)| !result.rejected.contains(k)).map(|(_, p)| *p).collect();
+    let white: Option<Vec<Matrix6<f64>>> =
+        white.map(|w| (0..poses.len()).filter(|k| !result.rejected.contains(k)).map(|k| w[k]).collect());
+    let white = white.as_deref();
     let depths = inliers.iter().map(|p| p.camera_from_target.translation.z);
     let (near, far) = depths.fold((f64::INFINITY, 0.0_f64), |(a, b), z| (a.min(z), b.max(z)));
     if !(near > 0.0 && far >= params.corner_bias_min_depth_ratio * near) {
@@ -472,6 +576,7 @@ fn corner_bias(
             &result.ee_from_camera,
             &result.base_from_target,
             h.rotation_weight_m,
+            white,
             h.max_iterations,
         );
         stats.final_cost

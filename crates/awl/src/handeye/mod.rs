@@ -67,6 +67,7 @@
 //! degrees (Park-Martin and Daniilidis do not).
 
 pub mod capture;
+mod capture_bound;
 pub mod chain;
 mod daniilidis;
 mod diagnosis;
@@ -84,6 +85,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 pub use capture::{CaptureCalibration, CaptureParams, CaptureViewReport, FlipChoice, calibrate_capture};
+pub use capture_bound::{BOUND_PROBABILITY, CaptureBound};
 pub use diagnosis::{Diagnosis, HandEyeWarning, Inversion, InversionFit};
 pub use diversity::MotionDiversity;
 pub use refine::RefineStats;

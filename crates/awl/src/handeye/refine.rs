@@ -6,8 +6,12 @@
 //! `(t(D_i), w log R(D_i))`: metres and radians weighted by `w` metres per radian. The update is
 //! `t += dt`, `R = R exp(dw)` for `X` and `Y`; the 6N x 12 Jacobian is taken by central differences
 //! (step 1e-6 m / rad). The cost is `sum |t(D_i)|^2 + w^2 |log R(D_i)|^2`.
+//!
+//! With per-pose whitening matrices `L_i` (a calibration capture's view covariances,
+//! [`crate::handeye::capture`]), the residual is `L_i (t(D_i), log R(D_i))` instead (metres and
+//! radians unweighted, then whitened: dimensionless), and the cost its squared norm summed.
 
-use nalgebra::{Isometry3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6};
 use serde::Serialize;
 
 use crate::handeye::HandEyePose;
@@ -36,10 +40,30 @@ pub(crate) fn residual(p: &HandEyePose, x: &Isometry3<f64>, y_inv: &Isometry3<f6
     Vector6::new(t.x, t.y, t.z, r.x, r.y, r.z)
 }
 
+/// The residual of one pose: with a whitening matrix `white`, `white * (t(D), log R(D))`; without,
+/// [`residual`] (rotation weighted by `w` metres per radian).
+pub(crate) fn weighted_residual(
+    p: &HandEyePose,
+    x: &Isometry3<f64>,
+    y_inv: &Isometry3<f64>,
+    w: f64,
+    white: Option<&Matrix6<f64>>,
+) -> Vector6<f64> {
+    match white {
+        Some(l) => l * residual(p, x, y_inv, 1.0),
+        None => residual(p, x, y_inv, w),
+    }
+}
+
+/// Per-pose whitening matrices (aligned with the poses), or none: the rotation weight alone.
+pub(crate) type Whitening<'a> = Option<&'a [Matrix6<f64>]>;
+
 /// The refinement cost of `(x, y)` (see the module docs).
-pub(crate) fn cost(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, w: f64) -> f64 {
+pub(crate) fn cost(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, w: f64, white: Whitening) -> f64 {
     let y_inv = y.inverse();
-    poses.iter().map(|p| residual(p, x, &y_inv, w).norm_squared()).sum()
+    (poses.iter().enumerate())
+        .map(|(k, p)| weighted_residual(p, x, &y_inv, w, white.map(|m| &m[k])).norm_squared())
+        .sum()
 }
 
 fn perturb(iso: &Isometry3<f64>, dt: Vector3<f64>, dw: Vector3<f64>) -> Isometry3<f64> {
@@ -74,15 +98,22 @@ pub(crate) fn shifted_unknowns(x: &Isometry3<f64>, y: &Isometry3<f64>) -> Shifte
 }
 
 /// Normal equations `(J^T J, J^T r)` at `(x, y)`.
-fn normal_equations(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, w: f64) -> (Matrix12, Vector12) {
+fn normal_equations(
+    poses: &[HandEyePose],
+    x: &Isometry3<f64>,
+    y: &Isometry3<f64>,
+    w: f64,
+    white: Whitening,
+) -> (Matrix12, Vector12) {
     let shifted = shifted_unknowns(x, y);
     let y_inv = y.inverse();
     let (mut h, mut g) = (Matrix12::zeros(), Vector12::zeros());
-    for p in poses {
-        let r = residual(p, x, &y_inv, w);
+    for (i, p) in poses.iter().enumerate() {
+        let l = white.map(|m| &m[i]);
+        let r = weighted_residual(p, x, &y_inv, w, l);
         let mut j = SMatrix::<f64, 6, 12>::zeros();
         for (k, ((xp, yp_inv), (xm, ym_inv))) in shifted.iter().enumerate() {
-            let col = (residual(p, xp, yp_inv, w) - residual(p, xm, ym_inv, w)) / (2.0 * H);
+            let col = (weighted_residual(p, xp, yp_inv, w, l) - weighted_residual(p, xm, ym_inv, w, l)) / (2.0 * H);
             j.set_column(k, &col);
         }
         h += j.transpose() * j;
@@ -91,22 +122,23 @@ fn normal_equations(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64
     (h, g)
 }
 
-/// Refines `(x, y)` over `poses`; returns the solution and its statistics.
+/// Refines `(x, y)` over `poses` (whitened by `white` when given); returns the solution and its statistics.
 pub(crate) fn refine(
     poses: &[HandEyePose],
     x0: &Isometry3<f64>,
     y0: &Isometry3<f64>,
     w: f64,
+    white: Whitening,
     max_iterations: usize,
 ) -> (Isometry3<f64>, Isometry3<f64>, RefineStats) {
     let (mut x, mut y) = (*x0, *y0);
-    let initial_cost = cost(poses, &x, &y, w);
+    let initial_cost = cost(poses, &x, &y, w, white);
     let mut current = initial_cost;
     let mut lambda = 1e-6;
     let mut stats = RefineStats { iterations: 0, converged: false, initial_cost, final_cost: initial_cost };
     while stats.iterations < max_iterations {
         stats.iterations += 1;
-        let (h, g) = normal_equations(poses, &x, &y, w);
+        let (h, g) = normal_equations(poses, &x, &y, w, white);
         let mut damped = h;
         for i in 0..12 {
             damped[(i, i)] += lambda * h[(i, i)].max(1e-12);
@@ -116,7 +148,7 @@ pub(crate) fn refine(
             continue;
         };
         let (cx, cy) = apply(&x, &y, &step);
-        let next = cost(poses, &cx, &cy, w);
+        let next = cost(poses, &cx, &cy, w, white);
         if next <= current {
             let change = current - next;
             (x, y, current) = (cx, cy, next);
@@ -157,7 +189,7 @@ mod tests {
             })
             .collect();
         let kick = isometry_from_translation_rotvec(Vector3::new(0.01, -0.02, 0.005), Vector3::new(0.05, 0.03, -0.04));
-        let (rx, ry, stats) = refine(&poses, &(x * kick), &(y * kick), 0.5, 50);
+        let (rx, ry, stats) = refine(&poses, &(x * kick), &(y * kick), 0.5, None, 50);
         let (dx, rxe) = crate::transform::pose_difference(&rx, &x);
         let (dy, rye) = crate::transform::pose_difference(&ry, &y);
         assert!(stats.converged && stats.final_cost < 1e-24, "{stats:?}");

@@ -1,12 +1,12 @@
 //! The calibration pipeline: validation, closed form, refinement, residuals, outlier rejection.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 
 use crate::error::{Error, Result};
 use crate::handeye::diagnosis::{Diagnosis, HandEyeWarning, Inversion, InversionFit, inversion_fits};
 use crate::handeye::diversity::{MotionDiversity, diversity};
 use crate::handeye::motion::{Motion, all_pairs};
-use crate::handeye::refine::{RefineStats, cost, refine};
+use crate::handeye::refine::{RefineStats, Whitening, cost, refine};
 use crate::handeye::residual::{PoseResidual, implied_targets, median, residuals, robust_mean};
 use crate::handeye::uncertainty::{HandEyeUncertainty, uncertainty};
 use crate::handeye::{HandEyeMethod, HandEyeParams, HandEyePose, HandEyeResult, daniilidis, park, tsai};
@@ -160,7 +160,7 @@ struct Solve {
     diversity: MotionDiversity,
 }
 
-fn solve_subset(poses: &[HandEyePose], params: &HandEyeParams) -> Result<Solve> {
+fn solve_subset(poses: &[HandEyePose], white: Whitening, params: &HandEyeParams) -> Result<Solve> {
     let motions: Vec<Motion> = all_pairs(poses);
     let diversity = diversity(&motions, params.min_pair_angle_deg.to_radians());
     if diversity.rotating_pairs < 2 || diversity.axis_angle_deg < params.degenerate_axis_angle_deg {
@@ -185,9 +185,9 @@ fn solve_subset(poses: &[HandEyePose], params: &HandEyeParams) -> Result<Solve> 
     let all: Vec<usize> = (0..poses.len()).collect();
     let y0 = robust_mean(&implied_targets(poses, &closed), &all);
     let (refined, base_from_target, stats) = if params.refine {
-        refine(poses, &closed, &y0, w, params.max_iterations)
+        refine(poses, &closed, &y0, w, white, params.max_iterations)
     } else {
-        let c = cost(poses, &closed, &y0, w);
+        let c = cost(poses, &closed, &y0, w, white);
         (closed, y0, RefineStats { iterations: 0, converged: true, initial_cost: c, final_cost: c })
     };
     Ok(Solve { closed, refined, base_from_target, stats, diversity })
@@ -213,7 +213,30 @@ fn worst_outlier(res: &[PoseResidual], params: &HandEyeParams) -> Option<usize> 
 /// [`Error::Invalid`] naming `poses[i].T_base_ee` / `poses[i].T_camera_target` for a non-finite or
 /// non-rigid pose, `poses` for fewer than 3 poses or degenerate motion, or the parameter at fault.
 pub fn calibrate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<HandEyeResult> {
+    calibrate_weighted(poses, None, params)
+}
+
+/// [`calibrate`] with the refinement's residuals whitened per pose by `white` (aligned with
+/// `poses`; see `handeye::refine`); the closed form, the residuals, the outlier rule and
+/// [`HandEyeResult::uncertainty`] (from the unweighted residuals at the weighted solution) are
+/// [`calibrate`]'s.
+///
+/// # Errors
+/// [`calibrate`]'s, and [`Error::Invalid`] when `white` does not hold one matrix a pose.
+pub(crate) fn calibrate_weighted(
+    poses: &[HandEyePose],
+    white: Option<&[Matrix6<f64>]>,
+    params: &HandEyeParams,
+) -> Result<HandEyeResult> {
     validate(poses, params)?;
+    if let Some(m) = white
+        && (m.len() != poses.len() || !m.iter().all(|m| m.iter().all(|v| v.is_finite())))
+    {
+        return Err(Error::invalid(
+            "whitening",
+            format!("{} finite matrices for {} poses (one a pose is needed)", m.len(), poses.len()),
+        ));
+    }
     let n = poses.len();
     let max_rejected = ((params.max_rejected_fraction * n as f64).floor() as usize).min(n - 3);
     let mut inlier = vec![true; n];
@@ -221,7 +244,9 @@ pub fn calibrate(poses: &[HandEyePose], params: &HandEyeParams) -> Result<HandEy
     let mut warnings = Vec::new();
     loop {
         let subset: Vec<HandEyePose> = poses.iter().zip(&inlier).filter(|(_, k)| **k).map(|(p, _)| *p).collect();
-        let solve = solve_subset(&subset, params)?;
+        let subset_white: Option<Vec<Matrix6<f64>>> =
+            white.map(|m| m.iter().zip(&inlier).filter(|(_, k)| **k).map(|(m, _)| *m).collect());
+        let solve = solve_subset(&subset, subset_white.as_deref(), params)?;
         let targets = implied_targets(poses, &solve.refined);
         let kept: Vec<usize> = (0..n).filter(|&i| inlier[i]).collect();
         let mean = robust_mean(&targets, &kept);

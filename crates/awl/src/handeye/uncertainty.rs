@@ -66,7 +66,7 @@ fn normal_matrix(poses: &[HandEyePose], x: &Isometry3<f64>, y: &Isometry3<f64>, 
 }
 
 /// The inverse of a symmetric positive semi-definite `m`, eigenvalues floored at `1e-14` of the largest.
-fn floored_inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
+pub(crate) fn floored_inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
     let eig = SymmetricEigen::new(m.clone());
     let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max).max(1e-300);
     let inv = eig.eigenvalues.map(|l| 1.0 / l.max(1e-14 * largest));
