@@ -549,11 +549,13 @@ fn combine_views(
 ) -> Result<Option<Combined>> {
     let x = prior.prior.ee_from_camera;
     // a view's own registration may move it from where the merged shot put it by what the prior's
-    // hand-eye error explains (3 sigma, the rotation's at 0.6 m) and a little more; a view that moves
-    // farther slid on its own and is left out
+    // hand-eye error, the arm's pose error and the registration's explain together (3 sigma, the
+    // rotation's at 0.6 m) and a little more; a view that moves farther slid on its own and is left out
     let c = &prior.prior.covariance;
-    let sigma_rad = (0..3).map(|k| c[(k, k)]).fold(0.0, f64::max).sqrt();
-    let sigma_m = (3..6).map(|k| c[(k, k)]).fold(0.0, f64::max).sqrt();
+    let he_rad = (0..3).map(|k| c[(k, k)]).fold(0.0, f64::max);
+    let he_m = (3..6).map(|k| c[(k, k)]).fold(0.0, f64::max);
+    let sigma_rad = (he_rad + noise.arm_rad.powi(2) + noise.camera_rad.powi(2)).sqrt();
+    let sigma_m = (he_m + noise.arm_m.powi(2) + noise.camera_m.powi(2)).sqrt();
     let gate_rad = 3.0 * sigma_rad + 0.1f64.to_radians();
     let gate_m = 3.0 * sigma_m + 0.6 * gate_rad + 0.001;
     let mut views = Vec::new();

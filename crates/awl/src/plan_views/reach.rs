@@ -91,10 +91,10 @@ pub fn view_obstacles(
     shot_points: &PointCloud,
     voxel_m: f64,
 ) -> Result<Obstacles> {
-    let mut all = model.clone();
-    all.normals = None;
     let model_from_base = base_from_model.inverse();
-    all.points.extend(shot_points.points.iter().map(|p| (model_from_base * p.cast::<f64>()).cast::<f32>()));
+    let mut points = model.points.clone();
+    points.extend(shot_points.points.iter().map(|p| (model_from_base * p.cast::<f64>()).cast::<f32>()));
+    let all = PointCloud::from_points(points);
     let coarse = downsample(&all, &VoxelParams { voxel_size_m: voxel_m })?;
     Obstacles::new(&coarse.points, floor, base_from_model)
 }
@@ -239,5 +239,26 @@ impl ViewArm {
             )),
             None => Ok(c.min),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Point3, Vector3};
+
+    use super::*;
+
+    #[test]
+    fn the_obstacles_take_a_fused_model_s_points_whatever_it_carries() {
+        // a model with normals and colors (what awl fuse writes), 1 cm apart; the shot's points 0.5 m up
+        let points: Vec<Point3<f32>> = (0..100).map(|i| Point3::new(i as f32 * 0.01, 0.0, 0.0)).collect();
+        let mut model = PointCloud::from_points(points.clone());
+        model.normals = Some(vec![Vector3::z(); 100]);
+        model.colors = Some(vec![[200, 10, 10]; 100]);
+        let shot = PointCloud::from_points(points.iter().map(|p| p + Vector3::new(0.0, 0.0, 0.5)).collect());
+        let base_from_model = Isometry3::translation(0.3, 0.0, 0.1);
+        let o = view_obstacles(&model, None, &base_from_model, &shot, 0.005).expect("obstacles");
+        assert_eq!(o.len(), 200);
+        assert!(view_obstacles(&model, None, &base_from_model, &shot, 0.0).is_err(), "a zero voxel is refused");
     }
 }
