@@ -74,7 +74,7 @@ fn fused() -> &'static Fused {
         let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("awl-bench/sim_reference-box_seed1");
         let (wp_path, model_path) = (out.join(WORKPIECE_FILE), out.join("model.ply"));
         if !wp_path.is_file() || !model_path.is_file() {
-            eprintln!("fusing {} once (default configuration) into {}", "box_seed1", out.display());
+            eprintln!("fusing box_seed1 once (default configuration) into {}", out.display());
             let scan = read_scan(&reference_dir().join("box_seed1")).expect("box_seed1 scan");
             let job = fuse_job(&scan, &FuseConfig::default(), &WorkpieceParams::default(), "model.ply", &|_, _, _| {})
                 .expect("fuse box_seed1");

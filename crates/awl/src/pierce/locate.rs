@@ -572,7 +572,9 @@ fn combine_views(
     let gate_rad = 3.0 * sigma_rad + 0.1f64.to_radians();
     let gate_m = 3.0 * sigma_m + 0.6 * gate_rad + 0.001;
     // each view registered on its own (in parallel), then taken in order
-    let fits: Vec<Result<Option<(Isometry3<f64>, Isometry3<f64>, OnModel)>>> = (0..loaded.len())
+    // per view: its flange, the seed and its fit (`None`: no flange pose, or it did not register)
+    type ViewFit = Option<(Isometry3<f64>, Isometry3<f64>, OnModel)>;
+    let fits: Vec<Result<ViewFit>> = (0..loaded.len())
         .into_par_iter()
         .map(|i| {
             let ViewPose::Chain { world_from_base, base_from_ee } = shot.views[i].pose else { return Ok(None) };
