@@ -22,8 +22,9 @@ use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
 use crate::handeye::chain::{ChainNoise, ChainParams, ChainPrior, ChainView, StopPrior, refine_chain};
 use crate::io::scan::load_view;
-use crate::registration::{IcpLevel, IcpParams, register};
+use crate::registration::{IcpLevel, IcpParams, PreparedTarget, register_prepared};
 use crate::scan::{LoadedView, Scan, TagSpec, ViewPose};
+use crate::spatial::LeafTree;
 use crate::transform::{adjoint, pose_difference, skew};
 use crate::workpiece::{SurfaceModel, TagEstimateParams, TagView, ViewTagDetection, estimate_from_views};
 
@@ -274,10 +275,12 @@ pub fn locate(
         }
         _ => shot,
     };
-    // every view is decoded once: its color for the tag, its points for the refinement
+    // every view is decoded once (in parallel, kept in order; the first view that fails is
+    // reported): its color for the tag, its points for the refinement
     let rays = shot.camera.as_ref().map(|c| c.intrinsics.ray_table());
-    let loaded: Vec<LoadedView> =
-        (0..shot.views.len()).map(|i| load_view(shot, i, rays.as_deref())).collect::<Result<_>>()?;
+    let loaded: Vec<Result<LoadedView>> =
+        (0..shot.views.len()).into_par_iter().map(|i| load_view(shot, i, rays.as_deref())).collect();
+    let loaded: Vec<LoadedView> = loaded.into_iter().collect::<Result<_>>()?;
     let views: Vec<TagView<'_>> = loaded
         .iter()
         .enumerate()
@@ -295,7 +298,18 @@ pub fn locate(
         Some(camera) if !views.is_empty() => camera,
         _ => return Err(shot_error(shot, "no view has a color image: the tag cannot be detected")),
     };
-    let estimate = estimate_from_views(&views, &camera.intrinsics, tag, &params.tag)?;
+    // the model at each ICP level, indexed once for every registration onto it, built while the
+    // tag is searched
+    let (estimate, target) = rayon::join(
+        || estimate_from_views(&views, &camera.intrinsics, tag, &params.tag),
+        || {
+            let Some(p) = &params.refine else { return Ok(None) };
+            let (levels, crop) =
+                rayon::join(|| PreparedTarget::new(model.cloud, &p.icp), || LeafTree::new(&model.cloud.points));
+            Ok::<_, Error>(Some(OnModelTarget { levels: levels?, crop: crop? }))
+        },
+    );
+    let estimate = estimate?;
     let Some(base_from_tag) = estimate.world_from_tag else {
         let checked: Vec<String> = estimate.views_checked.iter().map(usize::to_string).collect();
         let seen: Vec<String> = estimate.detections.iter().map(|d| format!("view {}: {}", d.view, d.reason)).collect();
@@ -314,14 +328,15 @@ pub fn locate(
         ));
     };
     let base_from_model_tag = base_from_tag * world_from_tag.inverse();
+    let target = target?;
     // what reading the shot fixed or dropped (each naming its file), then the tag's
     let mut warnings = shot.warnings.clone();
     warnings.extend(loaded.iter().flat_map(|v| v.warnings.iter().cloned()));
     warnings.extend(estimate.warnings);
     let mut base_from_model = base_from_model_tag;
-    let refinement = match &params.refine {
-        Some(p) => {
-            let r = refine_with_depth(&loaded, model, &base_from_model_tag, world_from_tag, p)?;
+    let refinement = match (&params.refine, &target) {
+        (Some(p), Some(target)) => {
+            let r = refine_with_depth(&loaded, target, &base_from_model_tag, world_from_tag, p)?;
             if r.applied {
                 base_from_model = r.base_from_model;
             } else {
@@ -329,11 +344,11 @@ pub fn locate(
             }
             Some(r)
         }
-        None => None,
+        _ => None,
     };
-    let hand_eye = match (&params.refine, &prior) {
-        (Some(p), Some(prior)) => {
-            combine_views(shot, &loaded, model, &base_from_model, prior, p, &params.noise, &mut warnings)?
+    let hand_eye = match (&params.refine, &target, &prior) {
+        (Some(p), Some(target), Some(prior)) => {
+            combine_views(shot, &loaded, target, &base_from_model, prior, p, &params.noise, &mut warnings)?
         }
         _ => None,
     };
@@ -479,14 +494,14 @@ fn shot_points(views: &[LoadedView], voxel_m: f64) -> Result<PointCloud> {
 
 fn refine_with_depth(
     views: &[LoadedView],
-    model: &SurfaceModel<'_>,
+    model: &OnModelTarget<'_>,
     seed: &Isometry3<f64>,
     world_from_tag: &Isometry3<f64>,
     params: &ShotRefineParams,
 ) -> Result<ShotRefinement> {
     let points = shot_points(views, params.voxel_m)?;
     let model_from_base = seed.inverse();
-    let source = near_model(&points, model, &model_from_base, params.crop_m);
+    let source = near_model(&points, &model.crop, &model_from_base, params.crop_m);
     let mut r = ShotRefinement {
         applied: false,
         base_from_model: *seed,
@@ -501,7 +516,7 @@ fn refine_with_depth(
         r.note = format!("{} shot points near the model, fewer than {}", source.len(), params.min_points);
         return Ok(r);
     }
-    let icp = register(&source, model.cloud, &model_from_base, &params.icp)?;
+    let icp = register_prepared(&source, &model.levels, &model_from_base, &params.icp)?;
     r.base_from_model = icp.target_from_source.inverse();
     r.fitness = icp.fitness;
     r.rmse_m = icp.inlier_rmse_m;
@@ -540,7 +555,7 @@ struct Combined {
 fn combine_views(
     shot: &Scan,
     loaded: &[LoadedView],
-    model: &SurfaceModel<'_>,
+    model: &OnModelTarget<'_>,
     base_from_model: &Isometry3<f64>,
     prior: &HandEyePrior,
     params: &ShotRefineParams,
@@ -558,15 +573,24 @@ fn combine_views(
     let sigma_m = (he_m + noise.arm_m.powi(2) + noise.camera_m.powi(2)).sqrt();
     let gate_rad = 3.0 * sigma_rad + 0.1f64.to_radians();
     let gate_m = 3.0 * sigma_m + 0.6 * gate_rad + 0.001;
+    // each view registered on its own (in parallel), then taken in order
+    // per view: its flange, the seed and its fit (`None`: no flange pose, or it did not register)
+    type ViewFit = Option<(Isometry3<f64>, Isometry3<f64>, OnModel)>;
+    let fits: Vec<Result<ViewFit>> = (0..loaded.len())
+        .into_par_iter()
+        .map(|i| {
+            let ViewPose::Chain { world_from_base, base_from_ee } = shot.views[i].pose else { return Ok(None) };
+            // world = the robot base at piercing time: the view's flange in it
+            let base_from_ee = world_from_base * base_from_ee;
+            let seed = base_from_model.inverse() * base_from_ee * x;
+            let points = downsample(&loaded[i].cloud_camera, &VoxelParams { voxel_size_m: params.voxel_m })?;
+            Ok(register_onto_model(&points, model, &seed, params)?.map(|r| (base_from_ee, seed, r)))
+        })
+        .collect();
     let mut views = Vec::new();
     let mut registered = Vec::new();
-    for (i, view) in loaded.iter().enumerate() {
-        let ViewPose::Chain { world_from_base, base_from_ee } = shot.views[i].pose else { continue };
-        // world = the robot base at piercing time: the view's flange in it
-        let base_from_ee = world_from_base * base_from_ee;
-        let seed = base_from_model.inverse() * base_from_ee * x;
-        let points = downsample(&view.cloud_camera, &VoxelParams { voxel_size_m: params.voxel_m })?;
-        let Some(r) = register_onto_model(&points, model, &seed, params)? else { continue };
+    for (i, fit) in fits.into_iter().enumerate() {
+        let Some((base_from_ee, seed, r)) = fit? else { continue };
         let (dt, dr) = pose_difference(&r.model_from_source, &seed);
         if dt > gate_m || dr > gate_rad {
             warnings.push(format!(
@@ -618,23 +642,25 @@ fn combine_views(
 
 /// The points of `points` (source frame) within `crop_m` metres of the model placed by
 /// `model_from_source`, in their order.
-fn near_model(
-    points: &PointCloud,
-    model: &SurfaceModel<'_>,
-    model_from_source: &Isometry3<f64>,
-    crop_m: f64,
-) -> PointCloud {
+fn near_model(points: &PointCloud, model: &LeafTree, model_from_source: &Isometry3<f64>, crop_m: f64) -> PointCloud {
     let crop_sq = (crop_m * crop_m) as f32;
     let keep: Vec<usize> = (0..points.len())
         .into_par_iter()
         .filter(|&i| {
             let q = (model_from_source * points.points[i].cast::<f64>()).cast::<f32>();
-            // bounded by the crop (a little wider, for the f32 rounding of its square): a shot point
-            // far from the model (floor, clutter) visits few nodes
-            model.index.nearest_within(&q, crop_m as f32 * 1.0001).is_some_and(|n| n.dist_sq <= crop_sq)
+            // the first model point that near answers; a shot point far from the model (floor,
+            // clutter) visits few nodes
+            model.any_within(&q, crop_sq)
         })
         .collect();
     points.select(&keep)
+}
+
+/// The model as the shot's points are registered onto it, built once for every registration: its
+/// ICP levels, and a tree of its points for the crop ([`near_model`]).
+struct OnModelTarget<'m> {
+    levels: PreparedTarget<'m>,
+    crop: LeafTree,
 }
 
 /// One source registered onto the model.
@@ -649,15 +675,15 @@ struct OnModel {
 /// correction exceeds the limits.
 fn register_onto_model(
     points: &PointCloud,
-    model: &SurfaceModel<'_>,
+    model: &OnModelTarget<'_>,
     model_from_source: &Isometry3<f64>,
     params: &ShotRefineParams,
 ) -> Result<Option<OnModel>> {
-    let near = near_model(points, model, model_from_source, params.crop_m);
+    let near = near_model(points, &model.crop, model_from_source, params.crop_m);
     if near.len() < params.min_points {
         return Ok(None);
     }
-    let icp = register(&near, model.cloud, model_from_source, &params.icp)?;
+    let icp = register_prepared(&near, &model.levels, model_from_source, &params.icp)?;
     let (dt, dr) = pose_difference(&icp.target_from_source, model_from_source);
     if icp.fitness < params.min_fitness || dt > params.max_correction_m || dr > params.max_correction_rad {
         return Ok(None);

@@ -17,6 +17,7 @@
 use std::borrow::Cow;
 
 use nalgebra::{Isometry3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::kernel::Kernel;
@@ -388,11 +389,30 @@ fn spectrum(
     (conditioning, ratio_of(observed), unobserved)
 }
 
+/// A level's target index: built for one registration, or shared by a [`PreparedTarget`].
+enum LevelIndex<'a> {
+    Own(TargetIndex),
+    Shared(&'a TargetIndex),
+}
+
+impl std::ops::Deref for LevelIndex<'_> {
+    type Target = TargetIndex;
+    fn deref(&self) -> &TargetIndex {
+        match self {
+            Self::Own(index) => index,
+            Self::Shared(index) => index,
+        }
+    }
+}
+
+/// One level's target cloud, with its index when one is already built.
+type LevelTarget<'a> = (Cow<'a, PointCloud>, Option<&'a TargetIndex>);
+
 /// One level's down-sampled source, target and target index.
 struct LevelData<'a> {
     src: PointCloud,
     tgt: Cow<'a, PointCloud>,
-    index: TargetIndex,
+    index: LevelIndex<'a>,
 }
 
 /// Gauss-Newton iterations of one level from `t`: the moved pose, the level's statistics and its
@@ -473,7 +493,72 @@ pub fn register(
     params: &IcpParams,
 ) -> Result<IcpResult> {
     check(params, source, target)?;
-    run(source, init, params, |level| level_cloud(target, params.levels[level].voxel_m), &[])
+    run(source, init, params, |level| Ok((level_cloud(target, params.levels[level].voxel_m)?, None)), &[])
+}
+
+/// A target prepared for many registrations with the same levels ([`register_prepared`]): each
+/// level's down-sampled cloud and its k-d tree, built once (the levels in parallel). Registering
+/// onto it gives exactly what [`register`] onto the target gives, without rebuilding them.
+pub struct PreparedTarget<'a> {
+    /// Each level's voxel size, the cloud at it and its index.
+    levels: Vec<(f64, Cow<'a, PointCloud>, TargetIndex)>,
+}
+
+impl std::fmt::Debug for PreparedTarget<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let sizes: Vec<(f64, usize)> = self.levels.iter().map(|(v, c, _)| (*v, c.len())).collect();
+        f.debug_struct("PreparedTarget").field("levels (voxel_m, points)", &sizes).finish()
+    }
+}
+
+impl<'a> PreparedTarget<'a> {
+    /// `target` (with normals) at each of `params.levels`.
+    ///
+    /// # Errors
+    /// As [`register`]'s checks of the target and the levels.
+    pub fn new(target: &'a PointCloud, params: &IcpParams) -> Result<Self> {
+        params.validate()?;
+        if params.levels.is_empty() {
+            return Err(Error::invalid("ICP parameters", "no levels"));
+        }
+        let levels = params
+            .levels
+            .par_iter()
+            .map(|level| {
+                let cloud = level_cloud(target, level.voxel_m)?;
+                let index = TargetIndex::Tree(LeafTree::new(&cloud.points)?);
+                Ok((level.voxel_m, cloud, index))
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self { levels })
+    }
+
+    /// The level at `voxel_m`, when prepared.
+    fn level(&self, voxel_m: f64) -> Option<&(f64, Cow<'a, PointCloud>, TargetIndex)> {
+        self.levels.iter().find(|(v, _, _)| *v == voxel_m)
+    }
+}
+
+/// [`register`] onto a [`PreparedTarget`] (whose levels must include `params`' voxel sizes): the
+/// same result, without down-sampling the target and building its index again.
+///
+/// # Errors
+/// As [`register`]; [`Error::Invalid`] when a level of `params` was not prepared.
+pub fn register_prepared(
+    source: &PointCloud,
+    target: &PreparedTarget<'_>,
+    init: &Isometry3<f64>,
+    params: &IcpParams,
+) -> Result<IcpResult> {
+    let mut levels = Vec::with_capacity(params.levels.len());
+    for l in &params.levels {
+        let Some(level) = target.level(l.voxel_m) else {
+            return Err(Error::invalid("ICP target", format!("no level prepared at voxel {} m", l.voxel_m)));
+        };
+        check(params, source, &level.1)?;
+        levels.push(level);
+    }
+    run(source, init, params, |k| Ok((Cow::Borrowed(levels[k].1.as_ref()), Some(&levels[k].2))), &[])
 }
 
 /// [`register`] to a target given already down-sampled at each level (`target_levels[k]` at
@@ -512,7 +597,7 @@ pub fn register_levels_expecting(
     for target in target_levels {
         check(params, source, target)?;
     }
-    run(source, init, params, |level| Ok(Cow::Borrowed(target_levels[level])), expected)
+    run(source, init, params, |level| Ok((Cow::Borrowed(target_levels[level]), None)), expected)
 }
 
 /// The coarse-to-fine loop; `target_at(k)` gives level `k`'s target cloud. A result with
@@ -521,7 +606,7 @@ fn run<'a>(
     source: &PointCloud,
     init: &Isometry3<f64>,
     params: &IcpParams,
-    target_at: impl Fn(usize) -> Result<Cow<'a, PointCloud>> + Sync,
+    target_at: impl Fn(usize) -> Result<LevelTarget<'a>> + Sync,
     expected: &[Unobserved],
 ) -> Result<IcpResult> {
     let free = run_holding(source, init, params, &target_at, &[], expected)?;
@@ -538,7 +623,7 @@ fn run_holding<'a>(
     source: &PointCloud,
     init: &Isometry3<f64>,
     params: &IcpParams,
-    target_at: &(impl Fn(usize) -> Result<Cow<'a, PointCloud>> + Sync),
+    target_at: &(impl Fn(usize) -> Result<LevelTarget<'a>> + Sync),
     held: &[Unobserved],
     expected: &[Unobserved],
 ) -> Result<IcpResult> {
@@ -550,8 +635,11 @@ fn run_holding<'a>(
     // while this level iterates (two levels in memory at most).
     let build = |k: usize| -> Result<LevelData<'a>> {
         let src = thin(level_cloud(source, params.levels[k].voxel_m)?, params.max_source_points);
-        let tgt = target_at(k)?;
-        let index = TargetIndex::Tree(LeafTree::new(&tgt.points)?);
+        let (tgt, built) = target_at(k)?;
+        let index = match built {
+            Some(index) => LevelIndex::Shared(index),
+            None => LevelIndex::Own(TargetIndex::Tree(LeafTree::new(&tgt.points)?)),
+        };
         Ok(LevelData { src, tgt, index })
     };
     let mut next = (!params.levels.is_empty()).then(|| build(0)).transpose()?;
@@ -630,6 +718,14 @@ mod tests {
             * Translation3::new(-0.3, 0.2, 0.0);
         let seed = Isometry3::from_parts(Translation3::new(0.02, 0.01, 0.0), UnitQuaternion::identity()) * about_axis;
         let r = register(&target, &target, &seed, &params).expect("register");
+        // onto the target prepared once: the same registration, bit for bit (its run again with
+        // the spin held too)
+        let prepared = PreparedTarget::new(&target, &params).expect("prepare");
+        let again = register_prepared(&target, &prepared, &seed, &params).expect("register prepared");
+        assert_eq!(format!("{again:?}"), format!("{r:?}"));
+        let other = IcpParams { levels: vec![level(0.02, 0.05)], ..params.clone() };
+        let e = register_prepared(&target, &prepared, &seed, &other).expect_err("a level not prepared");
+        assert!(e.to_string().contains("no level prepared"), "{e}");
         // the slide is corrected, the spin kept: the cylinder's points land on themselves turned 3 deg
         assert_eq!(r.unobserved.len(), 1, "{:?}", r.unobserved);
         let u = &r.unobserved[0];

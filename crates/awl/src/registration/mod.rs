@@ -8,8 +8,8 @@ pub mod kernel;
 mod solve;
 
 pub use icp::{
-    IcpLevel, IcpParams, IcpResult, LevelStats, MotionKind, Unobserved, register, register_levels,
-    register_levels_expecting,
+    IcpLevel, IcpParams, IcpResult, LevelStats, MotionKind, PreparedTarget, Unobserved, register, register_levels,
+    register_levels_expecting, register_prepared,
 };
 pub use joint::{JointLevelStats, refine_jointly};
 pub use kernel::Kernel;

@@ -292,6 +292,53 @@ impl LeafTree {
         let best = neighbor(best);
         ((best.index != u32::MAX).then_some(best), bound(second))
     }
+
+    /// Whether some point lies within squared distance `reach_sq` (inclusive) of `q`: whether the
+    /// nearest point is that near, answered at the first point found that near (a crop's test).
+    /// The descent of [`LeafTree::nearest_two_within`], its bound fixed at `reach_sq`.
+    pub(crate) fn any_within(&self, q: &Point3<f32>, reach_sq: f32) -> bool {
+        let q = [q.x, q.y, q.z];
+        if self.ids.is_empty() || reach_sq.is_nan() {
+            return false;
+        }
+        // the pending farther children, as in `nearest_two_within`: (gap, id, start, end)
+        let mut stack = [(0.0f32, 0u32, 0u32, 0u32); 32];
+        stack[0] = (0.0, 0, 0, self.ids.len() as u32);
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (gap, id, start, end) = stack[top];
+            let mut node = Node { id: id as usize, start: start as usize, end: end as usize };
+            if gap > reach_sq || self.boxes[node.id].gap(q) > reach_sq {
+                continue;
+            }
+            while !node.is_leaf() {
+                let (l, r) = node.children();
+                let Split { axis, l_hi, r_lo } = self.splits[node.id];
+                let axis = axis as usize;
+                let (near, far, across) = if q[axis] - l_hi <= r_lo - q[axis] {
+                    (l, r, (r_lo - q[axis]).max(0.0))
+                } else {
+                    (r, l, (q[axis] - l_hi).max(0.0))
+                };
+                if across * across <= reach_sq {
+                    stack[top] = (across * across, far.id as u32, far.start as u32, far.end as u32);
+                    top += 1;
+                }
+                node = near;
+            }
+            let r = node.start..node.end;
+            if self.xs[r.clone()]
+                .iter()
+                .zip(&self.ys[r.clone()])
+                .zip(&self.zs[r])
+                .any(|((&x, &y), &z)| dist_sq([x, y, z], q) <= reach_sq)
+            {
+                return true;
+            }
+        }
+        false
+    }
 }
 
 #[cfg(test)]
@@ -301,7 +348,7 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     #[test]
-    fn nearest_two_within_equals_brute_force_ties_by_index() {
+    fn nearest_two_within_and_any_within_equal_brute_force_ties_by_index() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let random: Vec<Point3<f32>> = (0..5000)
             .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), 0.1 * rng.random::<f32>()))
@@ -313,6 +360,7 @@ mod tests {
         lattice.extend_from_within(..500);
         for points in [random, lattice, vec![Point3::new(0.5, 0.5, 0.05)]] {
             let tree = LeafTree::new(&points).expect("tree");
+            let kd = crate::spatial::KdIndex::new(&points).expect("kd");
             for _ in 0..500 {
                 let q = Point3::new(
                     rng.random::<f32>() * 1.2 - 0.1,
@@ -332,6 +380,12 @@ mod tests {
                     let want = brute::nearest(&points, &q).filter(|n| n.dist_sq <= radius * radius);
                     let (nearest, next_sq) = tree.nearest_two_within(&q, radius);
                     assert_eq!(nearest, want, "{q:?} within {radius}");
+                    // the crop's test: as the bounded search on the k-d index (`pierce::locate`'s before)
+                    let reach = radius * radius;
+                    let any = points.iter().any(|p| dist_sq([p.x, p.y, p.z], [q.x, q.y, q.z]) <= reach);
+                    assert_eq!(tree.any_within(&q, reach), any, "{q:?} within {radius}");
+                    let kd_says = kd.nearest_within(&q, radius * 1.0001).is_some_and(|n| n.dist_sq <= reach);
+                    assert_eq!(kd_says, any, "{q:?} within {radius}");
                     let want_next = all.get(1).copied().filter(|&d| d <= radius * radius).unwrap_or(radius * radius);
                     assert!(
                         (next_sq - want_next).abs() <= 1e-6 * want_next.max(1e-9),
@@ -342,6 +396,7 @@ mod tests {
         }
         let empty = LeafTree::new(&[]).expect("empty");
         assert_eq!(empty.nearest_two_within(&Point3::origin(), 1.0), (None, 1.0));
+        assert!(!empty.any_within(&Point3::origin(), 1.0));
         assert!(LeafTree::new(&[Point3::new(0.0, f32::INFINITY, 0.0)]).is_err());
     }
 }
