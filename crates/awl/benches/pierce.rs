@@ -170,7 +170,7 @@ fn plan_views_10_targets(b: Bencher, threads: usize) {
     };
     let run = || {
         pool(threads).install(|| {
-            plan_after_pierce(&first, &params, &shot, &f.model, &candidates, &plan_params).expect("plan views")
+            plan_after_pierce(&first, &params, &shot, &f.model, None, &candidates, &plan_params).expect("plan views")
         })
     };
     let views = run();
