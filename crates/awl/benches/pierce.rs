@@ -32,8 +32,10 @@ use awl::PointCloud;
 use awl::io::mesh::{read_cloud, write_cloud};
 use awl::io::scan::read_scan;
 use awl::job::fuse_job;
+use awl::kinematics::Arm;
 use awl::pierce::{HandEyePrior, LocateParams, PierceParams, PiercePlan, Tolerance, plan};
 use awl::pipeline::FuseConfig;
+use awl::plan_views::reach::ViewRobot;
 use awl::plan_views::sample::candidates_after_pierce;
 use awl::plan_views::{PlanViewsParams, plan_after_pierce};
 use awl::scan::Scan;
@@ -156,26 +158,38 @@ fn pierce_6_views(b: Bencher, threads: usize) {
     b.bench(run);
 }
 
-#[divan::bench(args = THREADS, sample_count = 3, sample_size = 1)]
-fn plan_views_10_targets(b: Bencher, threads: usize) {
+/// With an arm (`awl plan-views --robot`): a UR10e (the simulated rig's shot poses are beyond a
+/// UR5e), a 150 mm tool; `None` without.
+fn bench_robot(with_arm: bool, floor: Option<awl::segment::FloorPlane>) -> Option<ViewRobot> {
+    with_arm.then(|| ViewRobot {
+        floor,
+        ..ViewRobot::new(Arm::by_name("ur10e").expect("ur10e"), nalgebra::Isometry3::translation(0.0, 0.0, 0.15))
+    })
+}
+
+#[divan::bench(args = [false, true], sample_count = 3, sample_size = 1)]
+fn plan_views_10_targets(b: Bencher, with_arm: bool) {
+    let threads = 2;
     let f = fused();
     let shot = read_scan(&reference_dir().join("box_seed1_shot_flat")).expect("2-view shot");
     let surface = SurfaceModel::new(&f.model).expect("model index").with_floor(f.workpiece.floor);
     let specs = targets(&surface, &f.workpiece, &f.model, &shot);
     let (first, params) = pierce(&surface, &f.workpiece, &shot, &specs);
     let candidates = candidates_after_pierce(&first, &shot).expect("candidates");
+    let robot = bench_robot(with_arm, f.workpiece.floor);
     let plan_params = PlanViewsParams {
         tolerance: Tolerance { position_m: Some(0.0005), axis_rad: None },
         ..PlanViewsParams::default()
     };
     let run = || {
         pool(threads).install(|| {
-            plan_after_pierce(&first, &params, &shot, &f.model, None, &candidates, &plan_params).expect("plan views")
+            plan_after_pierce(&first, &params, &shot, &f.model, robot.as_ref(), &candidates, &plan_params)
+                .expect("plan views")
         })
     };
     let views = run();
     eprintln!(
-        "check: plan_views_10_targets, {threads} threads: {} candidates, {} left out, chosen {:?}, worst bound {:.6} mm ({})",
+        "check: plan_views_10_targets, arm {with_arm}: {} candidates, {} left out, chosen {:?}, worst bound {:.6} mm ({})",
         candidates.len(),
         views.left_out.len(),
         views.chosen.iter().map(|c| c.candidate).collect::<Vec<_>>(),

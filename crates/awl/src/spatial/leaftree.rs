@@ -262,14 +262,7 @@ impl LeafTree {
                 continue;
             }
             while !node.is_leaf() {
-                let (l, r) = node.children();
-                let Split { axis, l_hi, r_lo } = self.splits[node.id];
-                let axis = axis as usize;
-                let (near, far, across) = if q[axis] - l_hi <= r_lo - q[axis] {
-                    (l, r, (r_lo - q[axis]).max(0.0))
-                } else {
-                    (r, l, (q[axis] - l_hi).max(0.0))
-                };
+                let (near, far, across) = self.near_far(node, q);
                 if across * across <= bound(second) {
                     stack[top] = entry(across * across, far);
                     top += 1;
@@ -293,6 +286,20 @@ impl LeafTree {
         ((best.index != u32::MAX).then_some(best), bound(second))
     }
 
+    /// An inner node's children for `q`: the one on `q`'s side of the split first, then the other
+    /// and `q`'s distance across the split to it (0 when `q` lies in the gap between them).
+    #[inline]
+    fn near_far(&self, node: Node, q: [f32; 3]) -> (Node, Node, f32) {
+        let (l, r) = node.children();
+        let Split { axis, l_hi, r_lo } = self.splits[node.id];
+        let axis = axis as usize;
+        if q[axis] - l_hi <= r_lo - q[axis] {
+            (l, r, (r_lo - q[axis]).max(0.0))
+        } else {
+            (r, l, (q[axis] - l_hi).max(0.0))
+        }
+    }
+
     /// Whether some point lies within squared distance `reach_sq` (inclusive) of `q`: whether the
     /// nearest point is that near, answered at the first point found that near (a crop's test).
     /// The descent of [`LeafTree::nearest_two_within`], its bound fixed at `reach_sq`.
@@ -313,14 +320,7 @@ impl LeafTree {
                 continue;
             }
             while !node.is_leaf() {
-                let (l, r) = node.children();
-                let Split { axis, l_hi, r_lo } = self.splits[node.id];
-                let axis = axis as usize;
-                let (near, far, across) = if q[axis] - l_hi <= r_lo - q[axis] {
-                    (l, r, (r_lo - q[axis]).max(0.0))
-                } else {
-                    (r, l, (q[axis] - l_hi).max(0.0))
-                };
+                let (near, far, across) = self.near_far(node, q);
                 if across * across <= reach_sq {
                     stack[top] = (across * across, far.id as u32, far.start as u32, far.end as u32);
                     top += 1;
