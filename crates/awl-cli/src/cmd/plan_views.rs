@@ -78,12 +78,7 @@ pub fn run(args: &PlanViewsArgs) -> anyhow::Result<()> {
     params.validate()?;
     let (specs, mut warnings) = targets(&args.targets)?;
     anyhow::ensure!(args.robot.fixed_spin.is_none(), "--fixed-spin is for awl pierce: a view has no tool spin");
-    anyhow::ensure!(
-        args.dwell_s.is_finite() && (0.0..=awl::plan_views::program::MAX_DWELL_S).contains(&args.dwell_s),
-        "--dwell-s must be 0-{} seconds, got {}",
-        awl::plan_views::program::MAX_DWELL_S,
-        args.dwell_s
-    );
+    awl::plan_views::program::check_dwell(args.dwell_s)?;
     let robot = robot_setup(&args.robot)?;
     anyhow::ensure!(
         robot.is_some() || (args.urscript.is_none() && args.techman.is_none()),

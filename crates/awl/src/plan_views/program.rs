@@ -67,11 +67,19 @@ impl ViewsProgram {
         for (k, q) in self.views.iter().enumerate() {
             check_joints(&format!("views[{k}].q"), q)?;
         }
-        if !(self.dwell_s.is_finite() && (0.0..=MAX_DWELL_S).contains(&self.dwell_s)) {
-            return Err(Error::invalid("--dwell-s", format!("must be 0-{MAX_DWELL_S} seconds, got {}", self.dwell_s)));
-        }
-        Ok(())
+        check_dwell(self.dwell_s)
     }
+}
+
+/// Refuses a wait at each view (`--dwell-s`) that is not 0-[`MAX_DWELL_S`] seconds.
+///
+/// # Errors
+/// [`Error::Invalid`] naming `--dwell-s`.
+pub fn check_dwell(dwell_s: f64) -> Result<()> {
+    if !(dwell_s.is_finite() && (0.0..=MAX_DWELL_S).contains(&dwell_s)) {
+        return Err(Error::invalid("--dwell-s", format!("must be 0-{MAX_DWELL_S} seconds, got {dwell_s}")));
+    }
+    Ok(())
 }
 
 /// The URScript program of `program` (module docs).

@@ -12,6 +12,7 @@ use crate::error::{Error, Result};
 use crate::filter::voxel::{VoxelParams, downsample};
 use crate::kinematics::collision::{BodyParams, Clearance, CollisionParams, Obstacles, capsules};
 use crate::kinematics::{Arm, Branch, IkParams, Joints, ik};
+use crate::pierce::reach::branch_of;
 use crate::segment::FloorPlane;
 
 /// The robot `awl plan-views --robot` checks the views for.
@@ -62,6 +63,8 @@ pub struct ViewArm {
     pub start: Joints,
     /// Whether `start` is the shot's recorded `q` (else the configuration awl chose for its last view).
     pub start_recorded: bool,
+    /// The configuration of `start`, tried first at every view.
+    pub prefer: Option<Branch>,
     /// The joint moves are checked every this much of the joint that moves most, radians. Default 0.5 deg.
     pub move_step_rad: f64,
 }
@@ -126,6 +129,7 @@ impl ViewArm {
             ik: IkParams::default(),
             start: [0.0; 6],
             start_recorded: recorded.is_some(),
+            prefer: None,
             move_step_rad: 0.5f64.to_radians(),
         };
         out.start = match recorded {
@@ -155,14 +159,8 @@ impl ViewArm {
                 best.q
             }
         };
+        out.prefer = branch_of(&out.arm, &out.start)?;
         Ok(out)
-    }
-
-    /// The configuration of the joints at the shot.
-    fn start_branch(&self) -> Option<Branch> {
-        let params = IkParams { reference: Some(self.start), ..IkParams::no_refusal() };
-        let s = ik::inverse(&self.arm, &self.arm.base_from_flange(&self.start), &params).ok()?;
-        s.solutions.first().map(|s| s.branch)
     }
 
     /// The tool end's clearance at `q`, or the collision.
@@ -191,9 +189,8 @@ impl ViewArm {
         if s.solutions.is_empty() {
             return Err(format!("the {} cannot reach it: {}", self.arm.name, s.reason()));
         }
-        let prefer = self.start_branch();
-        let mut order: Vec<&ik::IkSolution> = s.solutions.iter().filter(|x| Some(x.branch) == prefer).collect();
-        order.extend(s.solutions.iter().filter(|x| Some(x.branch) != prefer));
+        let mut order: Vec<&ik::IkSolution> = s.solutions.iter().filter(|x| Some(x.branch) == self.prefer).collect();
+        order.extend(s.solutions.iter().filter(|x| Some(x.branch) != self.prefer));
         let mut first_why = None;
         for sol in order {
             match self.collision_at(&sol.q, obstacles) {
