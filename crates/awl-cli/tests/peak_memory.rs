@@ -190,3 +190,102 @@ fn malformed_inputs_peak_at_most_twice_their_valid_part() {
     }
     println!("{}", report.join("\n"));
 }
+
+/// Runs `awl args` under [`TIME`] and `timeout 30`; returns (exit success, text, peak RSS in MB),
+/// with a failure when it is still running after 30 s (a hang).
+fn awl_peak_no_hang(args: &[&str]) -> (bool, String, f64) {
+    let out = Command::new(TIME)
+        .args(["-f", "awl-peak-kb %M", "timeout", "30"])
+        .arg(env!("CARGO_BIN_EXE_awl"))
+        .args(args)
+        .output()
+        .expect("run awl under time and timeout");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_ne!(out.status.code(), Some(124), "awl {args:?} still ran after 30 s (a hang): {stderr}");
+    let kb: f64 = stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("awl-peak-kb "))
+        .next_back()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no peak from {TIME}: {stderr}"));
+    (out.status.success(), format!("{}{stderr}", String::from_utf8_lossy(&out.stdout)), kb / 1024.0)
+}
+
+/// The length an LZF stream of literal runs and back-references decodes to.
+fn lzf_plain_len(lzf: &[u8]) -> usize {
+    let (mut at, mut len) = (0, 0);
+    while at < lzf.len() {
+        let ctrl = usize::from(lzf[at]);
+        if ctrl < 32 {
+            (at, len) = (at + 2 + ctrl, len + ctrl + 1);
+        } else if ctrl >> 5 == 7 {
+            (at, len) = (at + 3, len + 9 + usize::from(lzf[at + 1]));
+        } else {
+            (at, len) = (at + 2, len + 2 + (ctrl >> 5));
+        }
+    }
+    len
+}
+
+/// Issue 73's hostile inputs: a FIFO and a symlink to `/dev/zero` given as files, a scan.json listing
+/// 5 M views, a binary_compressed PCD whose (valid) LZF stream expands 13.6 MB to 1.2 GB. Each is
+/// refused naming the file and what it is, in under 100 MB, without hanging.
+#[test]
+fn hostile_files_are_refused_in_bounded_memory_without_hanging() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let path = |name: &str| d.join(name).to_str().expect("utf-8").to_string();
+    let fifo = Command::new("mkfifo").arg(d.join("fifo.ply")).status().expect("mkfifo");
+    assert!(fifo.success());
+    std::os::unix::fs::symlink("/dev/zero", d.join("zero.pcd")).expect("symlink");
+    std::fs::create_dir(d.join("views")).expect("mkdir");
+    let views = vec!["{}"; 5_000_000].join(",");
+    std::fs::write(d.join("views/scan.json"), format!("{{\"format\": \"awl-scan/1\", \"views\": [{views}]}}"))
+        .expect("write");
+    // 100 M points of x y z zeros: one literal zero, then back-references of 264 bytes at distance 1
+    let (n, record) = (100_000_000usize, 12usize);
+    let unpacked = n * record;
+    let mut lzf = vec![0u8, 0];
+    let full = (unpacked - 1) / 264;
+    for _ in 0..full {
+        lzf.extend([7 << 5, 255, 0]);
+    }
+    let rest = vec![0u8; unpacked - 1 - full * 264];
+    lzf.extend(lzf_literals(&rest));
+    let head = format!(
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\n\
+         DATA binary_compressed\n"
+    );
+    let mut pcd = head.into_bytes();
+    pcd.extend((lzf.len() as u32).to_le_bytes());
+    pcd.extend((unpacked as u32).to_le_bytes());
+    pcd.extend(&lzf);
+    std::fs::write(d.join("bomb.pcd"), pcd).expect("write");
+    assert_eq!(lzf_plain_len(&lzf), unpacked, "the bomb is LZF of the declared size");
+
+    let cases: [(&str, Vec<String>, Vec<&str>); 5] = [
+        ("a FIFO", vec!["info".into(), path("fifo.ply")], vec!["fifo.ply", "a FIFO", "not a regular file"]),
+        ("a symlink to /dev/zero", vec!["info".into(), path("zero.pcd")], vec!["zero.pcd", "a device"]),
+        ("5 M views", vec!["info".into(), path("views")], vec!["scan.json", "more than 100000 views"]),
+        (
+            "5 M views, fused",
+            vec!["fuse".into(), path("views"), "-o".into(), path("out")],
+            vec!["scan.json", "more than 100000 views"],
+        ),
+        (
+            "a PCD expanding to 1.2 GB",
+            vec!["info".into(), path("bomb.pcd")],
+            vec!["bomb.pcd", "1200000000 bytes", "decompression bomb"],
+        ),
+    ];
+    for (name, args, wants) in &cases {
+        let (ok, text, peak) = awl_peak_no_hang(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(!ok && !text.contains("panicked"), "{name}: must be refused: {text}");
+        for w in wants {
+            assert!(text.contains(w), "{name}: `{w}` not in: {text}");
+        }
+        println!("{name}: refused, {peak:.1} MB peak");
+        assert!(peak < 100.0, "{name}: {peak:.1} MB peak, over 100 MB");
+    }
+    assert!(!d.join("out").exists(), "a refused fuse writes nothing");
+}

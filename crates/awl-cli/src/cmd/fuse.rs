@@ -69,7 +69,7 @@ pub enum Preset {
 
 fn load_config(path: Option<&PathBuf>, base: FuseConfig) -> anyhow::Result<FuseConfig> {
     let Some(path) = path else { return Ok(base) };
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = awl::io::read_text_at_most(path, awl::io::MAX_JSON_BYTES)?;
     let config = if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
         FuseConfig::from_json_on(base, &text)
     } else {

@@ -35,7 +35,7 @@ pub struct RegisterArgs {
 }
 
 fn read_init(path: &Path) -> anyhow::Result<Isometry3<f64>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = awl::io::read_text_at_most(path, awl::io::MAX_JSON_BYTES)?;
     let value: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}: invalid JSON", path.display()))?;
     let field = if value.get("T_target_source").is_some() { "T_target_source" } else { "(top level)" };

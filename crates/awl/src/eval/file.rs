@@ -9,8 +9,8 @@ use serde_json::Value;
 use crate::error::{Error, Result};
 use crate::eval::Evaluation;
 use crate::eval::heatmap::errors_ply;
-use crate::io::scan::{parse_json, pose_field};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::scan::{pose_field, read_json};
+use crate::io::write_atomic;
 use crate::transform::{Rows, rows_from_isometry};
 
 /// Names of the files [`write_evaluation`] writes.
@@ -23,7 +23,7 @@ pub const OUTPUT_FILES: [&str; 3] = ["summary.json", "errors.ply", "T_object_mod
 /// [`Error::Io`]; [`Error::Format`] for invalid JSON (a NaN or infinity is named);
 /// [`Error::Field`] naming the field for a value that is not a rigid 4x4 matrix.
 pub fn read_transform(path: &Path, key: &str) -> Result<Isometry3<f64>> {
-    let value: Value = parse_json(path, &read_bytes(path)?)?;
+    let value: Value = read_json(path)?;
     let (field, matrix) = match value.get(key) {
         Some(m) => (key, m.clone()),
         None => ("(top level)", value),

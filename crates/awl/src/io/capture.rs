@@ -16,8 +16,7 @@ use crate::camera::{DepthCamera, Intrinsics, PixelRect, depth_points_in};
 use crate::error::{Error, Result};
 use crate::image::ColorImage;
 use crate::io::image::{read_color_image, read_depth_png};
-use crate::io::read_bytes;
-use crate::io::scan::{FORMAT, RawIntrinsics, check_size, intrinsics_from_parts, parse_json, pose_field, positive};
+use crate::io::scan::{FORMAT, RawIntrinsics, check_size, intrinsics_from_parts, pose_field, positive, read_json};
 use crate::scan::TagSpec;
 use crate::transform::Rows;
 
@@ -190,7 +189,7 @@ pub fn read_capture(dir_or_manifest: &Path) -> Result<Capture> {
     } else {
         (dir_or_manifest.to_path_buf(), dir_or_manifest.join("scan.json"))
     };
-    let raw: RawCapture = parse_json(&path, &read_bytes(&path)?)?;
+    let raw: RawCapture = read_json(&path)?;
     if raw.format != FORMAT {
         return Err(Error::field(&path, "format", format!("expected \"{FORMAT}\", got \"{}\"", raw.format)));
     }
@@ -248,8 +247,7 @@ pub fn read_intrinsics(path: &Path) -> Result<Intrinsics> {
 pub fn read_camera_file(path: &Path) -> Result<(Intrinsics, Option<TagSpec>)> {
     let path = if path.is_dir() { path.join("scan.json") } else { path.to_path_buf() };
     let path = path.as_path();
-    let bytes = read_bytes(path)?;
-    let value: serde_json::Value = parse_json(path, &bytes)?;
+    let value: serde_json::Value = read_json(path)?;
     let is_scan = value.get("format").is_some();
     let (block, prefix) = if is_scan {
         let camera = value.get("camera").ok_or_else(|| Error::field(path, "camera", "missing"))?;

@@ -32,12 +32,85 @@ pub struct Loaded<T> {
     pub warnings: Vec<String>,
 }
 
-/// Reads a whole file, naming it in the error.
+/// Reads a whole regular file (a symlink to one is followed), naming it in the error.
 ///
 /// # Errors
-/// [`Error::Io`] when the file cannot be read.
+/// [`Error::Io`] when the file cannot be read; [`Error::Format`] when it is not a regular file
+/// ([`open_regular`]).
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
-    fs::read(path).map_err(|e| Error::io(path, e))
+    read_bytes_at_most(path, u64::MAX)
+}
+
+/// The largest JSON file awl reads, bytes: 64 MiB (a 100 000-view scan.json with chain poses,
+/// written with indentation, is about 50 MB; parsing takes a few times the text's size).
+pub const MAX_JSON_BYTES: u64 = 64 << 20;
+
+/// Reads a whole regular file of at most `max_bytes`, its size checked before anything is read.
+///
+/// # Errors
+/// [`read_bytes`]'s, and [`Error::Format`] naming the file, its size and the limit when it is larger.
+pub fn read_bytes_at_most(path: &Path, max_bytes: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let file = open_regular(path)?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let too_big = |len: u64| {
+        Error::format(
+            path,
+            format!(
+                "{len} bytes, more than the {max_bytes} bytes awl reads from a file of this kind (is it the right file?)"
+            ),
+        )
+    };
+    if len > max_bytes {
+        return Err(too_big(len));
+    }
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    // (a file growing while it is read stops at the limit too)
+    file.take(max_bytes.saturating_add(1)).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_big(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// Reads a whole regular text file of at most `max_bytes` ([`read_bytes_at_most`]).
+///
+/// # Errors
+/// [`read_bytes_at_most`]'s, and [`Error::Format`] naming the file when it is not UTF-8 text.
+pub fn read_text_at_most(path: &Path, max_bytes: u64) -> Result<String> {
+    String::from_utf8(read_bytes_at_most(path, max_bytes)?)
+        .map_err(|e| Error::format(path, format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to())))
+}
+
+/// Opens `path` for reading when it is a regular file, a symlink followed: a folder, a FIFO, a
+/// socket or a device (`/dev/zero`) is refused before it is opened, so no read can block or run
+/// without end.
+///
+/// # Errors
+/// [`Error::Io`] when `path` cannot be examined or opened; [`Error::Format`] naming what it is when
+/// it is not a regular file.
+pub fn open_regular(path: &Path) -> Result<fs::File> {
+    let meta = fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        let what = if t.is_dir() {
+            "a folder"
+        } else if t.is_fifo() {
+            "a FIFO (named pipe)"
+        } else if t.is_socket() {
+            "a socket"
+        } else if t.is_char_device() || t.is_block_device() {
+            "a device"
+        } else {
+            "not a regular file"
+        };
+        return Err(Error::format(
+            path,
+            format!("{what}, not a regular file: awl reads files saved on disk; save it to one first"),
+        ));
+    }
+    fs::File::open(path).map_err(|e| Error::io(path, e))
 }
 
 /// Writes `bytes` to `path` atomically: a temporary file beside it, fsync, then rename.

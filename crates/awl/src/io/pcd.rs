@@ -76,8 +76,9 @@ pub fn parse_pcd_organised(path_for_errors: &Path, bytes: &[u8]) -> Result<Organ
 /// The body's size is checked against the header before anything is allocated: `POINTS` records
 /// of the `SIZE` × `COUNT` bytes the fields take (binary), `POINTS` lines of at least two
 /// characters a value (ascii); for `binary_compressed`, the declared uncompressed size must be
-/// `POINTS` × the record size, the compressed bytes must be in the file, and LZF cannot expand
-/// them more than 88 times; nothing is decompressed beyond the declared size.
+/// `POINTS` × the record size, the compressed bytes must be in the file, LZF cannot expand them
+/// more than 88 times, and above [`MAX_LZF_PLAIN_BYTES`] not more than [`MAX_LZF_RATIO`] times;
+/// nothing is decompressed beyond the declared size.
 ///
 /// # Errors
 /// As [`parse_pcd`].
@@ -274,6 +275,17 @@ fn check_body_size(path: &Path, h: &Header, body: &[u8]) -> Result<Option<String
                     ),
                 ));
             }
+            if unpacked > MAX_LZF_PLAIN_BYTES && unpacked / MAX_LZF_RATIO > packed {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "PCD binary_compressed: {packed} compressed bytes declared to expand to {unpacked} bytes \
+                         (POINTS {n}{grid}), more than {MAX_LZF_RATIO} times: point data does not compress so far, \
+                         this is a corrupt header or a decompression bomb; if the cloud is real, save it as \
+                         `DATA binary` (pcl_convert_pcd_ascii_binary FILE OUT 1)"
+                    ),
+                ));
+            }
             // bytes after the compressed data are not warned about: PCL's own writer leaves ~3.9 KB
             // there (every binary_compressed file of PCL's in shared/data)
             Ok(None)
@@ -354,6 +366,15 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, encoding: PcdEncoding) -> Resu
     }
     write_atomic(path, &out)
 }
+
+/// A `binary_compressed` body may declare more than [`MAX_LZF_RATIO`] times its compressed size
+/// only below this many bytes (64 MiB): above it, a high ratio is a decompression bomb, refused
+/// before anything is allocated.
+pub const MAX_LZF_PLAIN_BYTES: usize = 64 << 20;
+
+/// How far a large `binary_compressed` body may expand (32 times: PCL's LZF packs real clouds 1.5-4
+/// times; only constant data, such as an organised cloud of NaNs, packs further).
+pub const MAX_LZF_RATIO: usize = 32;
 
 /// Decompresses a `binary_compressed` body to exactly `n × record` bytes (its sizes checked by
 /// [`check_body_size`]).

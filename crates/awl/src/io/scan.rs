@@ -16,7 +16,7 @@ use crate::cloud::PointCloud;
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
 use crate::io::image::{read_color_image_every_nth, read_depth_png_every_nth};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::write_atomic;
 use crate::scan::{LoadedView, Scan, TagSpec, ViewData, ViewPose, ViewSpec};
 use crate::transform::{Rows, isometry_from_rows, rows_from_isometry};
 
@@ -67,7 +67,36 @@ struct RawScan {
     ee_camera: Option<Rows>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     tag: Option<TagSpec>,
+    #[serde(deserialize_with = "at_most_views")]
     views: Vec<RawView>,
+}
+
+/// The most views a scan.json may list: 100 000 (awl is built for scans of thousands; the list is
+/// refused as it is parsed, before more are held).
+pub const MAX_VIEWS: usize = 100_000;
+
+/// `views`, refused at its [`MAX_VIEWS`]` + 1`-th entry.
+fn at_most_views<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<RawView>, D::Error> {
+    struct AtMost;
+    impl<'de> serde::de::Visitor<'de> for AtMost {
+        type Value = Vec<RawView>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "a list of at most {MAX_VIEWS} views")
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Vec<RawView>, A::Error> {
+            let mut views = Vec::new();
+            while let Some(view) = seq.next_element()? {
+                if views.len() == MAX_VIEWS {
+                    return Err(serde::de::Error::custom(format!(
+                        "`views` lists more than {MAX_VIEWS} views, the most awl reads from one scan: split the scan"
+                    )));
+                }
+                views.push(view);
+            }
+            Ok(views)
+        }
+    }
+    d.deserialize_seq(AtMost)
 }
 
 /// [`pose_field`], re-orthonormalising a rotation off by float32 rounding
@@ -106,6 +135,12 @@ pub(crate) fn pose_field(path: &Path, field: &str, rows: &Rows) -> Result<Isomet
 /// is past any of them; a value beyond is a unit mistake or garbage).
 pub const MAX_TRANSLATION_M: f64 = 1e5;
 
+/// Reads and parses a JSON file of at most [`MAX_JSON_BYTES`](crate::io::MAX_JSON_BYTES), naming
+/// the file (and the line and column) on error.
+pub(crate) fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    parse_json(path, &crate::io::read_bytes_at_most(path, crate::io::MAX_JSON_BYTES)?)
+}
+
 /// Parses JSON text, naming the file, line and column on error.
 pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(path: &Path, bytes: &[u8]) -> Result<T> {
     serde_json::from_slice(bytes).map_err(|e| {
@@ -113,6 +148,9 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(path: &Path, bytes: &[u
         if ["NaN", "-NaN", "Infinity", "-Infinity", "nan", "inf", "-inf"].iter().any(|t| token.starts_with(t)) {
             let (line, column) = (e.line(), e.column());
             Error::format(path, format!("non-finite number `{token}` (NaN or infinity) at line {line} column {column}: every number must be finite"))
+        } else if e.classify() == serde_json::error::Category::Data {
+            // well-formed JSON whose content is refused: a missing key, a wrong type, a limit
+            Error::format(path, e.to_string())
         } else {
             Error::format(path, format!("invalid JSON: {e}"))
         }
@@ -274,7 +312,7 @@ pub fn read_scan(dir_or_manifest: &Path) -> Result<Scan> {
         let dir = dir_or_manifest.parent().map(Path::to_path_buf).unwrap_or_default();
         (dir, dir_or_manifest.to_path_buf())
     };
-    let raw: RawScan = parse_json(&path, &read_bytes(&path)?)?;
+    let raw: RawScan = read_json(&path)?;
     if raw.format != FORMAT {
         return Err(Error::field(&path, "format", format!("expected \"{FORMAT}\", got \"{}\"", raw.format)));
     }

@@ -8,8 +8,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::error::{Error, Result};
-use crate::io::scan::{parse_json, pose_field};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::scan::{pose_field, read_json};
+use crate::io::write_atomic;
 use crate::transform::{Rows, rows_from_isometry};
 
 /// A target on the workpiece, in the object frame (and, in piercing shots, in the world frame).
@@ -114,7 +114,7 @@ fn finite3(path: &Path, field: &str, v: [f64; 3]) -> Result<[f64; 3]> {
 /// non-finite or zero-length target normal.
 pub fn read_truth(dir_or_file: &Path) -> Result<Truth> {
     let path = if dir_or_file.is_dir() { dir_or_file.join("truth.json") } else { dir_or_file.to_path_buf() };
-    let raw: RawTruth = parse_json(&path, &read_bytes(&path)?)?;
+    let raw: RawTruth = read_json(&path)?;
     let views = raw
         .views
         .iter()

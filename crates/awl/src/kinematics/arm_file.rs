@@ -24,7 +24,6 @@ use nalgebra::Isometry3;
 use serde_json::Value;
 
 use crate::error::{Error, Result};
-use crate::io::read_bytes;
 use crate::io::scan::{parse_json, pose_field};
 use crate::kinematics::{Arm, DhJoint};
 use crate::transform::{Rows, rows_from_isometry};
@@ -123,7 +122,7 @@ pub fn parse_arm(path: &Path, bytes: &[u8]) -> Result<Arm> {
 /// # Errors
 /// [`Error::Io`] when it cannot be read, else as [`parse_arm`].
 pub fn read_arm(path: &Path) -> Result<Arm> {
-    parse_arm(path, &read_bytes(path)?)
+    parse_arm(path, &crate::io::read_bytes_at_most(path, crate::io::MAX_JSON_BYTES)?)
 }
 
 /// The JSON text of an arm file for `arm` (what [`parse_arm`] reads back to the same arm).

@@ -60,7 +60,7 @@ pub struct PlanToSend {
 /// # Errors
 /// [`Error::Io`]; [`Error::Format`] for invalid JSON; as [`verify_plan`].
 pub fn read_plan_to_send(path: &Path) -> Result<PlanToSend> {
-    let value: Value = crate::io::scan::parse_json(path, &crate::io::read_bytes(path)?)?;
+    let value: Value = crate::io::scan::read_json(path)?;
     verify_plan(path, &value)
 }
 

@@ -10,8 +10,7 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use crate::error::{Error, Result};
-use crate::io::read_bytes;
-use crate::io::scan::{parse_json, pose_field};
+use crate::io::scan::{pose_field, read_json};
 use crate::kinematics::collision::Clearance;
 use crate::plan_views::{Candidate, ViewPlan};
 use crate::transform::{Rows, rows_from_isometry};
@@ -40,8 +39,7 @@ struct CandidatesFile {
 /// [`Error::Format`] / [`Error::Field`] naming the file and the candidate: not JSON, no
 /// `candidates`, none at all, more than [`MAX_CANDIDATES`], a pose missing or not rigid.
 pub fn read_candidates(path: &Path) -> Result<Vec<Candidate>> {
-    let bytes = read_bytes(path)?;
-    let file: CandidatesFile = parse_json(path, &bytes)?;
+    let file: CandidatesFile = read_json(path)?;
     if file.candidates.is_empty() {
         return Err(Error::format(path, "`candidates` is empty: give at least one flange pose"));
     }
@@ -86,8 +84,7 @@ struct ViewEntry {
 /// [`Error::Format`] / [`Error::Field`] naming the file: not JSON, another format, more than
 /// [`MAX_CANDIDATES`] views, a pose that is not rigid.
 pub fn read_view_poses(path: &Path) -> Result<Vec<nalgebra::Isometry3<f64>>> {
-    let bytes = read_bytes(path)?;
-    let file: ViewsFile = parse_json(path, &bytes)?;
+    let file: ViewsFile = read_json(path)?;
     if file.format != "awl-views/1" {
         return Err(Error::field(path, "format", format!("`{}`, expected `awl-views/1`", file.format)));
     }

@@ -31,7 +31,7 @@ pub(crate) fn for_each(
     progress: &mut dyn FnMut(u64),
     f: &mut dyn FnMut(&BagMessage<'_>) -> Result<()>,
 ) -> Result<()> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = crate::io::open_regular(path)?;
     let read = Rc::new(Cell::new(0));
     let reader = Counting { inner: std::io::BufReader::with_capacity(1 << 20, file), read: Rc::clone(&read) };
     let mut messages = mcap::io::MessageReader::new(reader);

@@ -71,7 +71,7 @@ const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
 fn storage_of(path: &Path) -> Result<Storage> {
     use std::io::Read;
     let mut head = [0u8; 16];
-    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut file = crate::io::open_regular(path)?;
     let n = file.read(&mut head).map_err(|e| Error::io(path, e))?;
     let head = &head[..n];
     if head.starts_with(MCAP_MAGIC) {

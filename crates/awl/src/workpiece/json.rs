@@ -23,7 +23,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::io::scan::{parse_json, pose_field};
+use crate::io::scan::{pose_field, read_json};
 use crate::io::{read_bytes, write_atomic};
 use crate::pipeline::HandEyeReport;
 use crate::scan::TagSpec;
@@ -146,7 +146,7 @@ pub fn write_workpiece(path: &Path, workpiece: &Workpiece) -> Result<()> {
 /// [`Error::Field`] naming the field for a wrong `format`, a non-rigid matrix
 /// (`T_world_tag`, `detections[i].T_world_tag`, `refinement.T_world_tag`) or a bad tag size.
 pub fn read_workpiece(path: &Path) -> Result<Workpiece> {
-    let raw: RawWorkpiece = parse_json(path, &read_bytes(path)?)?;
+    let raw: RawWorkpiece = read_json(path)?;
     if raw.format != WORKPIECE_FORMAT {
         return Err(Error::field(path, "format", format!("expected \"{WORKPIECE_FORMAT}\", got \"{}\"", raw.format)));
     }
