@@ -125,6 +125,21 @@ fn send_refuses_a_plan_edited_in_any_one_number_of_its_programs_poses_or_joints(
     assert!(out.status.success(), "{}", text(&out));
     let plan = read_json(&path);
     verify_plan(&path, &plan).expect("the plan as written verifies");
+    // the joint move to the second target comes from the first one's retract and is checked; the
+    // first one's start is not known (the shot records no joints), which the plan says
+    assert!(plan["targets"][0]["reach"]["transfer"].is_null(), "{}", plan["targets"][0]["reach"]);
+    let transfer = &plan["targets"][1]["reach"]["transfer"];
+    println!("transfer to target 1: {transfer}");
+    assert_eq!(transfer["from"], "target 0", "{transfer}");
+    assert_eq!(transfer["from_q_rad"], plan["targets"][0]["reach"]["q_rad"]["retract"]);
+    assert!(transfer["samples"].as_u64().expect("samples") >= 2, "{transfer}");
+    assert!(transfer["largest_joint_deg"].as_f64().expect("deg") < 90.0, "a consistent configuration: {transfer}");
+    let warned = plan["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .any(|w| w.as_str().is_some_and(|w| w.contains("first joint move")));
+    assert!(warned, "{}", plan["warnings"]);
     // every number of the tool poses, the reach's joints, tool and flange poses and spin, T_ee_tool,
     // the surface points and axes and the stroke
     let mut pointers = Vec::new();

@@ -5,9 +5,9 @@
 //! kinematics puts the links.
 //! Run in release: `cargo test --release -p awl --test reach`.
 
-use awl::kinematics::collision::{Against, BodyParams, CollisionParams, Link, Obstacles, capsules};
+use awl::kinematics::collision::{Against, BodyParams, CollisionParams, Link, Obstacles, SWEEP_MARGIN_M, capsules};
 use awl::kinematics::{Arm, Branch};
-use awl::pierce::reach::{ReachParams, reach_target};
+use awl::pierce::reach::{ReachParams, branch_of, reach_target, reach_target_from};
 use awl::pierce::{Stroke, tool_poses};
 use awl::workpiece::file::FloorPlane;
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -151,4 +151,117 @@ fn capsules_follow_the_link_frames() {
     assert!(bad.validate().expect_err("refused").to_string().contains("tool_radius_m"));
     let bad = CollisionParams { reach_m: 0.0, ..CollisionParams::default() };
     assert!(bad.validate().expect_err("refused").to_string().contains("reach_m"));
+}
+
+/// A wall of points in the plane `y = 0`, `x` from `x0` to `x1`, `z` from `z0` to `z1`, every 7.5 mm.
+fn wall(x0: f64, x1: f64, z0: f64, z1: f64) -> Vec<Point3<f32>> {
+    let (nx, nz) = (((x1 - x0) / 0.0075) as i32, ((z1 - z0) / 0.0075) as i32);
+    (0..=nx)
+        .flat_map(|i| {
+            (0..=nz).map(move |k| {
+                Point3::new((x0 + 0.0075 * f64::from(i)) as f32, 0.0, (z0 + 0.0075 * f64::from(k)) as f32)
+            })
+        })
+        .collect()
+}
+
+/// Issue 73: the program's joint move from one target's retract to the next one's approach. Two
+/// targets 0.7 m apart on either side of a wall (0.7 m tall, between them): each alone is reachable,
+/// but the joint move that the configurations chosen alone would make passes through the wall; from
+/// the first target, the second is re-routed through another spin or configuration whose move is
+/// clear, or refused naming the move. Every move taken is checked along its whole swept motion: 20 000 configurations along it, brute force, keep the capsules 2.5 mm
+/// (3 mm less the sweep margin) clear. On the UR10e and the TM12.
+#[test]
+fn a_transfer_through_a_wall_is_refused_and_a_clear_one_is_checked_along_its_sweep() {
+    for name in ["ur10e", "tm12"] {
+        let arm = Arm::by_name(name).expect("arm");
+        let ee_from_tool = Isometry3::translation(0.0, 0.0, 0.15);
+        let params = ReachParams::default();
+        let (a, b) = (Point3::new(0.7, -0.35, 0.1), Point3::new(0.7, 0.35, 0.1));
+        let stroke = Stroke::default();
+        let (pa, pb) = (
+            tool_poses(&a, &-Vector3::z(), &stroke).expect("poses"),
+            tool_poses(&b, &-Vector3::z(), &stroke).expect("poses"),
+        );
+        let mut model = plate(a.x, a.y, a.z, 0.1, 0.005);
+        model.extend(plate(b.x, b.y, b.z, 0.1, 0.005));
+        let open = Obstacles::new(&model, None, &Isometry3::identity()).expect("obstacles");
+        model.extend(wall(0.45, 1.0, 0.1, 0.8));
+        let walled = Obstacles::new(&model, None, &Isometry3::identity()).expect("obstacles");
+        // as `plan_reach` does: coming from joints, their configuration preferred and the nearest joints
+        let reach = |t: &Point3<f64>, poses, obstacles: &Obstacles, from: Option<(Option<usize>, [f64; 6])>| {
+            let reference = from.map(|(_, q)| q);
+            let prefer = reference.and_then(|q| branch_of(&arm, &q).expect("branch"));
+            reach_target_from(&arm, &ee_from_tool, poses, t, Some(obstacles), reference, prefer, from, &params)
+                .expect("reach")
+        };
+
+        let first = reach(&a, &pa, &walled, None);
+        assert!(first.reachable, "{name}: {}", first.reason);
+        let retract = first.joints.expect("joints").retract;
+        // alone, the second target is reachable; the move to it from the first passes through the wall
+        let alone = reach(&b, &pb, &walled, None);
+        assert!(alone.reachable, "{name}: {}", alone.reason);
+        let to = alone.joints.expect("joints").approach;
+        let swing = walled.check_joint_move(&arm, &retract, &to, &ee_from_tool, &params.body, &params.collision);
+        let hit = swing.collision.expect("the move the targets alone make crosses the wall");
+        println!("{name}: alone, the move hits the {} at {:.0} %", hit.clearance.link.name(), hit.s * 100.0);
+        // the swept motion of a move, brute force: its smallest clearance over 20 000 configurations
+        let brute = |obstacles: &Obstacles, to: &[f64; 6]| {
+            let mut closest = f64::INFINITY;
+            for i in 0..=20_000 {
+                let s = f64::from(i) / 20_000.0;
+                let q: [f64; 6] = std::array::from_fn(|k| retract[k] + (to[k] - retract[k]) * s);
+                let capsules = capsules(&arm, &q, &ee_from_tool, &params.body);
+                if let Some(c) = obstacles.clearance(&capsules, None, &params.collision) {
+                    closest = closest.min(c.distance_m);
+                }
+            }
+            closest
+        };
+        let keeps = params.collision.min_clearance_m - SWEEP_MARGIN_M;
+        // coming from the first target, every candidate's move is checked: re-routed through another
+        // spin or configuration whose whole sweep is clear, or refused naming the move
+        let second = reach(&b, &pb, &walled, Some((Some(0), retract)));
+        if second.reachable {
+            let m = second.transfer.expect("the move is checked");
+            let to = second.joints.expect("joints").approach;
+            assert_ne!(to, alone.joints.expect("joints").approach, "{name}: another candidate");
+            let closest = brute(&walled, &to);
+            println!(
+                "{name}: from target 0, re-routed: {} spin {:.0} deg (alone: {} {:.0} deg), {:.0} deg of the largest \
+                 joint, {} samples, clearance {:.4} m; brute force {closest:.4} m",
+                second.branch.expect("branch"),
+                second.spin_rad.to_degrees(),
+                alone.branch.expect("branch"),
+                alone.spin_rad.to_degrees(),
+                m.largest_joint_rad.to_degrees(),
+                m.samples,
+                m.clearance.map_or(f64::NAN, |c| c.distance_m),
+            );
+            assert!(closest >= keeps, "{name}: the re-routed move comes {closest} m from the wall");
+        } else {
+            println!("{name}: from target 0, refused: {}", second.reason);
+            assert!(
+                second.reason.contains("the joint move from target 0's retract to the approach brings the"),
+                "{}",
+                second.reason
+            );
+        }
+
+        // without the wall: the move is checked and clear along its whole sweep
+        let second = reach(&b, &pb, &open, Some((Some(0), retract)));
+        assert!(second.reachable, "{name}: {}", second.reason);
+        let m = second.transfer.expect("the move is checked");
+        assert_eq!(m.from_target, Some(0));
+        let closest = brute(&open, &second.joints.expect("joints").approach);
+        println!(
+            "{name}: no wall, {:.0} deg of the largest joint, {} samples checked, clearance {:?}; brute force {closest:.4} m",
+            m.largest_joint_rad.to_degrees(),
+            m.samples,
+            m.clearance.map(|c| c.distance_m)
+        );
+        assert!(closest >= keeps, "{name}: {closest}");
+        assert!(m.largest_joint_rad > 0.5, "{name}: the move turns the arm: {}", m.largest_joint_rad);
+    }
 }

@@ -323,11 +323,24 @@ pub struct SpinParams {
     /// The scale of each margin in [`Margins::score`]. Default: limits 0.5 rad, wrist and elbow
     /// 0.5, shoulder 0.1 m.
     pub scale: Margins,
+    /// Rank the passing candidates by the joint motion from `line.ik.reference` to their approach
+    /// (the largest joint's, in steps of [`MOTION_STEP_RAD`]) before their margins: what a program
+    /// coming from those joints moves least. Default false (margins first).
+    pub least_motion: bool,
 }
+
+/// The step of [`SpinParams::least_motion`]'s ranking, radians (10 deg: motions closer than this
+/// are ranked by their margins).
+pub const MOTION_STEP_RAD: f64 = 0.174_532_925_199_432_95;
 
 impl Default for SpinParams {
     fn default() -> Self {
-        Self { count: 36, fixed_rad: None, scale: Margins { limit_rad: 0.5, wrist: 0.5, elbow: 0.5, shoulder_m: 0.1 } }
+        Self {
+            count: 36,
+            fixed_rad: None,
+            scale: Margins { limit_rad: 0.5, wrist: 0.5, elbow: 0.5, shoulder_m: 0.1 },
+            least_motion: false,
+        }
     }
 }
 
@@ -506,9 +519,16 @@ pub fn best_spin_with(
     }
     search.passed = passed.len();
     // stable: equal keys keep the search order (smaller spin, then nearer the reference)
+    let steps = |c: &SpinChoice| match (spin.least_motion, line.ik.reference) {
+        (true, Some(r)) => {
+            let largest = (0..6).map(|k| (c.start.q[k] - r[k]).abs()).fold(0.0, f64::max);
+            (largest / MOTION_STEP_RAD).floor() as i64
+        }
+        _ => 0,
+    };
     passed.sort_by(|a, b| {
         let other = |c: &SpinChoice| prefer.is_some_and(|p| p != c.start.branch);
-        other(a).cmp(&other(b)).then(b.score.total_cmp(&a.score))
+        other(a).cmp(&other(b)).then(steps(a).cmp(&steps(b))).then(b.score.total_cmp(&a.score))
     });
     for choice in passed {
         search.accept_calls += 1;

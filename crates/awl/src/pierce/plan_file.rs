@@ -41,7 +41,10 @@
 //!   "tool": { "approach": POSE, "pierce": POSE, "retract": POSE } | null (T_base_tool turned by the spin:
 //!   the programs' poses), "flange": { ... } | null (T_base_flange),
 //!   "margins": { "limit_deg", "wrist_sin", "elbow_sin", "shoulder_m" } | null,
-//!   "clearance": { "m": 0.021, "link": "tool", "against": "model" } | null, "candidates_passed": 100 }`;
+//!   "clearance": { "m": 0.021, "link": "tool", "against": "model" } | null, "candidates_passed": 100,
+//!   "transfer": { "from": "shot" | "target 0", "from_q_rad": [6], "largest_joint_deg": 40.0,
+//!   "clearance": { ... } | null, "samples": 120 } | null }` (the program's joint move to the approach,
+//!   checked along its swept motion; null: not checked, see the plan's warnings);
 //! `CONF` = `{ "shoulder": 1, "elbow": -1, "wrist": 1 }`.
 
 use std::path::Path;
@@ -201,6 +204,13 @@ pub fn reach_json(r: &TargetReach) -> Value {
         })),
         "clearance": r.clearance.map(|c| json!({ "m": c.distance_m, "link": c.link.name(), "against": c.against.name() })),
         "candidates_passed": r.candidates_passed,
+        "transfer": r.transfer.map(|m| json!({
+            "from": m.from_target.map_or("shot".to_string(), |i| format!("target {i}")),
+            "from_q_rad": m.from_q,
+            "largest_joint_deg": m.largest_joint_rad.to_degrees(),
+            "clearance": m.clearance.map(|c| json!({ "m": c.distance_m, "link": c.link.name(), "against": c.against.name() })),
+            "samples": m.samples,
+        })),
     })
 }
 

@@ -107,8 +107,27 @@ pub struct TargetReach {
     pub clearance: Option<Clearance>,
     /// Candidates (spin x configuration) whose path passed the kinematic checks.
     pub candidates_passed: usize,
+    /// The joint move the program makes to this target's approach, checked for collisions
+    /// (`None`: not checked: a target left out, or the first one when the shot records no joints).
+    pub transfer: Option<Transfer>,
     /// The work the search took.
     pub work: ReachWork,
+}
+
+/// A program's joint move to a target's approach joints (URScript `movej`, Techman `PTP`), checked
+/// along its whole swept motion ([`Obstacles::check_joint_move`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Transfer {
+    /// Where it starts: `None` the shot's recorded joints, `Some(i)` target `i`'s retract joints.
+    pub from_target: Option<usize>,
+    /// The joints it starts from, radians.
+    pub from_q: Joints,
+    /// The largest joint motion along it, radians.
+    pub largest_joint_rad: f64,
+    /// The smallest clearance along it (`None`: nothing within the collision reach, no floor).
+    pub clearance: Option<Clearance>,
+    /// Configurations along it checked.
+    pub samples: usize,
 }
 
 /// The work of one target's reach search, in counts (what the cheap-first order saves).
@@ -193,7 +212,32 @@ pub fn reach_target(
     prefer: Option<Branch>,
     params: &ReachParams,
 ) -> Result<TargetReach> {
+    reach_target_from(arm, ee_from_tool, tool, target, obstacles, reference_q, prefer, None, params)
+}
+
+/// [`reach_target`] for a program that comes to this target from joints `from` (`from_target`:
+/// `None` the shot's, `Some(i)` target `i`'s retract): a candidate passes only when the joint move
+/// from there to its approach joints is clear along its whole swept motion as well
+/// ([`Obstacles::check_joint_move`]); the reach's `transfer` says how clear. A candidate whose move
+/// collides is passed over for the next (another spin or configuration): the move is re-routed
+/// through the arm's other solutions, or the target refused naming it.
+///
+/// # Errors
+/// As [`reach_target`].
+#[allow(clippy::too_many_arguments)]
+pub fn reach_target_from(
+    arm: &Arm,
+    ee_from_tool: &Isometry3<f64>,
+    tool: &ToolPoses,
+    target: &Point3<f64>,
+    obstacles: Option<&Obstacles>,
+    reference_q: Option<Joints>,
+    prefer: Option<Branch>,
+    from: Option<(Option<usize>, Joints)>,
+    params: &ReachParams,
+) -> Result<TargetReach> {
     let mut work = ReachWork::default();
+    let mut transfer: Option<Transfer> = None;
     if let Some(reason) = beyond_reach_bound(arm, ee_from_tool, tool) {
         return Ok(unreachable(reason, 0, work));
     }
@@ -222,7 +266,26 @@ pub fn reach_target(
             obstacles.first_collision(arm, &choice.report, ee_from_tool, &params.body, target, &params.collision);
         work.collision_points += check.samples_checked;
         clearance = check.min;
-        let Some(c) = check.collision else { return Ok(None) };
+        let Some(c) = check.collision else {
+            let Some((from_target, from_q)) = from else { return Ok(None) };
+            let Some(to) = choice.report.joints_at_poses().first().copied() else { return Ok(None) };
+            let m = obstacles.check_joint_move(arm, &from_q, &to, ee_from_tool, &params.body, &params.collision);
+            work.collision_points += m.samples_checked;
+            if let Some(hit) = m.collision {
+                let whence = from_target.map_or("the shot's joints".to_string(), |i| format!("target {i}'s retract"));
+                return Ok(Some(format!(
+                    "the joint move from {whence} to the approach brings the {} {:.1} mm from the {} ({:.0} % of the way)",
+                    hit.clearance.link.name(),
+                    hit.clearance.distance_m * 1e3,
+                    hit.clearance.against.name(),
+                    hit.s * 1e2
+                )));
+            }
+            let largest_joint_rad = (0..6).map(|k| (to[k] - from_q[k]).abs()).fold(0.0, f64::max);
+            transfer =
+                Some(Transfer { from_target, from_q, largest_joint_rad, clearance: m.min, samples: m.samples_checked });
+            return Ok(None);
+        };
         // 1e-9 m inside the minimum: beyond the rounding of the other paths' forward kinematics
         if invariant.contains(&c.clearance.link) && c.clearance.distance_m < params.collision.min_clearance_m - 1e-9 {
             on_axis.push((steps, c));
@@ -230,7 +293,9 @@ pub fn reach_target(
         }
         Ok(Some(c.to_string()))
     };
-    let search = best_spin_with(arm, tool, ee_from_tool, &line, &params.spin, prefer, &mut accept)?;
+    // coming from known joints, the candidates that move least from them first
+    let spin = SpinParams { least_motion: from.is_some(), ..params.spin };
+    let search = best_spin_with(arm, tool, ee_from_tool, &line, &spin, prefer, &mut accept)?;
     work.ik_poses = search.ik_poses;
     work.paths_checked = search.paths_checked;
     let Some(best) = search.best else {
@@ -257,6 +322,7 @@ pub fn reach_target(
         margins: Some(best.report.min),
         clearance: if obstacles.is_some() { clearance } else { None },
         candidates_passed: search.passed,
+        transfer,
         work,
     })
 }
@@ -273,6 +339,7 @@ fn unreachable(reason: String, candidates_passed: usize, work: ReachWork) -> Tar
         margins: None,
         clearance: None,
         candidates_passed,
+        transfer: None,
         work,
     }
 }
@@ -375,10 +442,43 @@ pub fn plan_reach_with(
     let obstacles = Obstacles::new(&coarse.points, floor, &plan.located.base_from_model)?;
     let total = plan.targets.len();
     progress(0, total);
+    // where the arm is when the program moves to the next target: the shot's joints, then each
+    // target's retract; its configuration preferred and its joints the nearest (a consistent
+    // configuration), the move from it checked
+    let mut at: Option<(Option<usize>, Joints)> = reference_q.map(|q| (None, q));
     for (i, t) in plan.targets.iter_mut().enumerate() {
-        let r = reach_target(arm, ee_from_tool, &t.poses, &t.p_base, Some(&obstacles), reference_q, prefer, &params)?;
+        let (reference, prefer) = match at {
+            Some((Some(_), q)) => (Some(q), branch_of(arm, &q)?.or(prefer)),
+            _ => (reference_q, prefer),
+        };
+        // a target left out for its bounds gets no move: the program goes past it
+        let from = if t.refusal.is_none() { at } else { None };
+        let r = reach_target_from(
+            arm,
+            ee_from_tool,
+            &t.poses,
+            &t.p_base,
+            Some(&obstacles),
+            reference,
+            prefer,
+            from,
+            &params,
+        )?;
+        if t.refusal.is_none()
+            && let Some(j) = r.joints.filter(|_| r.reachable)
+        {
+            at = Some((Some(i), j.retract));
+        }
         t.reach = Some(r);
         progress(i + 1, total);
+    }
+    if reference_q.is_none() && plan.targets.iter().any(|t| t.go()) {
+        plan.warnings.push(
+            "the program's first joint move starts wherever the arm is: the shot records no joints (views[i].q), so \
+             that move is not checked for collisions (the moves between targets are); record the arm's joints in the \
+             shot, or bring the arm near the first approach before running the program"
+                .to_string(),
+        );
     }
     plan.reach = Some(ReachSetup {
         arm: arm.name.clone(),

@@ -65,8 +65,6 @@ pub struct ViewArm {
     pub start_recorded: bool,
     /// The configuration of `start`, tried first at every view.
     pub prefer: Option<Branch>,
-    /// The joint moves are checked every this much of the joint that moves most, radians. Default 0.5 deg.
-    pub move_step_rad: f64,
 }
 
 /// A view's joints and what they were checked for.
@@ -130,7 +128,6 @@ impl ViewArm {
             start: [0.0; 6],
             start_recorded: recorded.is_some(),
             prefer: None,
-            move_step_rad: 0.5f64.to_radians(),
         };
         out.start = match recorded {
             Some(q) => {
@@ -217,15 +214,7 @@ impl ViewArm {
         to: &Joints,
         obstacles: &Obstacles,
     ) -> std::result::Result<Option<Clearance>, String> {
-        let c = obstacles.check_joint_move(
-            &self.arm,
-            from,
-            to,
-            &self.ee_from_tool,
-            &self.body,
-            &self.collision,
-            self.move_step_rad,
-        );
+        let c = obstacles.check_joint_move(&self.arm, from, to, &self.ee_from_tool, &self.body, &self.collision);
         match c.collision {
             Some(hit) => Err(format!(
                 "the joint move to it would bring the {} {:.1} mm from the {} ({:.0} % of the way)",
