@@ -787,6 +787,18 @@ fn the_refinement_stays_near_the_closed_forms_unless_the_data_hold_an_error() {
             let r = calibrate(&poses, &HandEyeParams::default()).expect("calibrate");
             let c = r.refinement_check.expect("a check");
             let (et, _) = error_mm_deg(&r.ee_from_camera, &truth);
+            // the same data with the rotations weighted 100x too much (30 m/rad)
+            let heavy = calibrate(&poses, &HandEyeParams { rotation_weight_m: 30.0, ..HandEyeParams::default() })
+                .expect("calibrate");
+            let hc = heavy.refinement_check.expect("a check");
+            let (ht, _) = error_mm_deg(&heavy.ee_from_camera, &truth);
+            let (hr, _) = error_mm_deg(&heavy.refined_ee_from_camera, &truth);
+            println!(
+                "   30 m/rad: result {ht:.2} mm off (refined {hr:.2}); shift {:.2} mm, limit {:.2} mm, kept {}",
+                hc.shift_mm, hc.limit_mm, hc.kept_refined
+            );
+            let (hcf, _) = error_mm_deg(&heavy.closed_form_ee_from_camera, &truth);
+            assert!(ht <= hr.min(hcf) + 1.0, "seed {seed} {name} 30 m/rad: {ht} against {hr} / {hcf}");
             let (rt, _) = error_mm_deg(&r.refined_ee_from_camera, &truth);
             let (ct, _) = error_mm_deg(&r.closed_form_ee_from_camera, &truth);
             println!(

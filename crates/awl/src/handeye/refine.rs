@@ -49,7 +49,7 @@ pub struct RefinementCheck {
     /// Its rotation's 1-sigma (3D RMS), degrees.
     pub closed_form_sigma_deg: f64,
     /// The largest translation shift the noise explains: the spread plus 3 sigma of the difference
-    /// (closed form's and refinement's 3D sigmas combined), millimetres.
+    /// (the closed form's and the refinement's 3D sigmas combined), millimetres.
     pub limit_mm: f64,
     /// The same for the rotation, degrees.
     pub limit_deg: f64,

@@ -232,7 +232,10 @@ fn jackknife_sigma(poses: &[HandEyePose], method: HandEyeMethod, centre: &Isomet
 
 /// Compares the refined `X` with the closed forms over the final inliers (module docs, step 2): the
 /// refined one is kept when its shift from the method's closed form stays within the closed forms'
-/// spread plus 3 sigma of the difference, in translation and in rotation.
+/// spread plus 3 sigma of the difference (the closed form's jackknife sigma and the refinement's
+/// sigma combined, 3D RMS), in translation and in rotation. The refinement's sigma scales with
+/// `rotation_weight_m` (at 30 m/rad the limits reach 80-500 mm); without it the limits are tighter
+/// but a principal point 2 % off falls back to a closed form 2.4 mm worse (simulated seed 4).
 fn refinement_check(
     inliers: &[HandEyePose],
     solve: &Solve,
