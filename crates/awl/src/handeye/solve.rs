@@ -386,8 +386,9 @@ pub(crate) fn calibrate_weighted(
         }
         let fits = inversion_fits(poses);
         check_convention(&res, &fits, &solve, params, &mut warnings)?;
-        let mut result = finish(solve, res, rejected, warnings, uncertainty, fits, check, params);
+        let mut result = finish(solve, res, rejected, warnings, uncertainty, fits, params);
         result.refined_ee_from_camera = refined_ee_from_camera;
+        result.refinement_check = check;
         check_result(&result)?;
         return Ok(result);
     }
@@ -432,7 +433,7 @@ fn check_convention(
                     " (with every {} inverted instead they fit {} ({:.2} mm), but put the camera {:.3} m from the \
                      flange and the target {:.3} m from the robot base, against {:.3} m and {:.3} m)",
                     o.inversion.fields(),
-                    if fitting(&o) { "too" } else { "worse" },
+                    if fitting(o) { "too" } else { "worse" },
                     o.median_translation_mm,
                     o.camera_from_flange_m,
                     o.target_from_base_m,
@@ -491,7 +492,6 @@ fn finish(
     mut warnings: Vec<HandEyeWarning>,
     uncertainty: HandEyeUncertainty,
     inversion_fits: Vec<InversionFit>,
-    refinement_check: Option<RefinementCheck>,
     params: &HandEyeParams,
 ) -> HandEyeResult {
     let d = solve.diversity;
@@ -596,7 +596,7 @@ fn finish(
         inversion_fits,
         diversity: d,
         refinement: solve.stats,
-        refinement_check,
+        refinement_check: None,
         warnings,
     }
 }
