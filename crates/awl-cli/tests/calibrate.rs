@@ -141,6 +141,10 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
     assert!(inliers < 1.2 && all > 5.0, "{inliers} {all}");
     assert!(t.contains("(inliers)") && t.contains("(all poses)") && t.contains("1-sigma: translation"), "{t}");
     assert_eq!(d["params"]["outlier_floor_mm"], serde_json::json!(2.0));
+    // the refinement kept, its shift from the closed form and the 95 % bound reported
+    assert_eq!(d["refinement_check"]["kept_refined"], serde_json::json!(true), "{}", d["refinement_check"]);
+    assert!(d["T_ee_camera_refined"].is_array() && d["uncertainty"]["translation_bound_95_mm"].as_f64().is_some());
+    assert!(t.contains("95 % bound") && t.contains("refined vs park closed form"), "{t}");
 
     let t = ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-floor-mm", "100", "--force"]));
     let d = read_json(&out);
@@ -155,6 +159,14 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
     let warned =
         d["warnings"].as_array().expect("warnings").iter().any(|w| w["diagnosis"] == "translation_undetermined");
     assert!(warned && t.contains("warning: translation not determined"), "{t}");
+    // a tolerance above the predicted bound: no such warning
+    let bound = d["uncertainty"]["translation_bound_95_mm"].as_f64().expect("bound");
+    let tol = format!("--tolerance-mm={}", bound + 1.0);
+    ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-floor-mm", "100", &tol, "--force"]));
+    let d = read_json(&out);
+    let warned =
+        d["warnings"].as_array().expect("warnings").iter().any(|w| w["diagnosis"] == "translation_undetermined");
+    assert!(!warned, "{}", d["warnings"]);
     // the factor alone: 100x the median keeps it too
     ok(&awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, "--outlier-factor", "100", "--force"]));
     assert_eq!(read_json(&out)["rejected"], serde_json::json!([]));
@@ -166,6 +178,8 @@ fn thresholds_from_the_command_line_change_the_rejection_and_bad_values_name_the
         ("--max-rejected-fraction", "1.5", "at most 1"),
         ("--max-scale-sigma-percent", "nan", "positive"),
         ("--inverted-fit-factor", "0.5", ">= 1"),
+        ("--tolerance-mm", "0", "positive"),
+        ("--scale-mismatch-percent", "-1", "positive"),
     ] {
         let arg = format!("{flag}={value}");
         let r = awl(&["calibrate", "hand-eye", "--poses", p, "-o", o, &arg, "--force"]);

@@ -133,12 +133,16 @@ pub struct HandEyeTuning {
     /// Refinement iteration cap.
     #[arg(long, default_value_t = HandEyeParams::default().max_iterations)]
     pub max_iterations: usize,
-    /// Warn when T_ee_camera's translation 1-sigma along some direction exceeds this, mm.
-    #[arg(long, default_value_t = HandEyeParams::default().max_translation_sigma_mm)]
-    pub max_translation_sigma_mm: f64,
+    /// The error of T_ee_camera's translation you can accept, mm: warn when its predicted 95 % bound
+    /// exceeds this.
+    #[arg(long, default_value_t = HandEyeParams::default().tolerance_mm)]
+    pub tolerance_mm: f64,
     /// Warn when the 1-sigma of the target scale (tag size) exceeds this, percent.
     #[arg(long, default_value_t = HandEyeParams::default().max_scale_sigma_percent)]
     pub max_scale_sigma_percent: f64,
+    /// Warn when the fitted target scale differs from 1 by more than this (and 3 sigma), percent.
+    #[arg(long, default_value_t = HandEyeParams::default().scale_mismatch_percent)]
+    pub scale_mismatch_percent: f64,
     /// The residual noise the 1-sigmas assume at least, mm.
     #[arg(long, default_value_t = HandEyeParams::default().min_noise_mm)]
     pub min_noise_mm: f64,
@@ -148,8 +152,8 @@ pub struct HandEyeTuning {
     /// Accept poses that look inverted (a warning instead of the refusal).
     #[arg(long)]
     pub allow_inverted_fit: bool,
-    /// The most poses (views found) a calibration takes: every pose pair is used, memory and time grow
-    /// with the square of the count.
+    /// The most poses (views found) a calibration takes (beyond 447 the closed forms use a bounded
+    /// set of 100 000 pose pairs: memory and time grow linearly with the count).
     #[arg(long, default_value_t = HandEyeParams::default().max_poses)]
     pub max_poses: usize,
 }
@@ -169,8 +173,9 @@ impl HandEyeTuning {
             min_pair_angle_deg: self.min_pair_angle_deg,
             min_axis_angle_deg: self.min_axis_angle_deg,
             degenerate_axis_angle_deg: self.degenerate_axis_angle_deg,
-            max_translation_sigma_mm: self.max_translation_sigma_mm,
+            tolerance_mm: self.tolerance_mm,
             max_scale_sigma_percent: self.max_scale_sigma_percent,
+            scale_mismatch_percent: self.scale_mismatch_percent,
             min_noise_mm: self.min_noise_mm,
             inverted_fit_factor: self.inverted_fit_factor,
             allow_inverted_fit: self.allow_inverted_fit,
@@ -220,6 +225,7 @@ fn result_json(result: &HandEyeResult, params: &HandEyeParams) -> serde_json::Va
         "format": "awl-handeye-result/1",
         "T_ee_camera": rows_from_isometry(&result.ee_from_camera),
         "T_ee_camera_closed_form": rows_from_isometry(&result.closed_form_ee_from_camera),
+        "T_ee_camera_refined": rows_from_isometry(&result.refined_ee_from_camera),
         "T_base_target": rows_from_isometry(&result.base_from_target),
         "method": result.method.name(),
         "refined": params.refine,
@@ -234,6 +240,7 @@ fn result_json(result: &HandEyeResult, params: &HandEyeParams) -> serde_json::Va
         "residuals": result.residuals,
         "diversity": result.diversity,
         "refinement": result.refinement,
+        "refinement_check": result.refinement_check,
         "warnings": result.warnings,
         "params": params,
     })
@@ -283,10 +290,24 @@ fn hand_eye(args: &HandEyeArgs) -> anyhow::Result<()> {
     );
     let (s, r) = (u.translation_sigma_mm, u.rotation_sigma_deg);
     println!(
-        "1-sigma: translation [{:.2}, {:.2}, {:.2}] mm (flange axes), rotation [{:.3}, {:.3}, {:.3}] deg (camera \
-         axes), target scale {:.2} %",
-        s[0], s[1], s[2], r[0], r[1], r[2], u.scale_sigma_percent
+        "1-sigma: translation [{:.2}, {:.2}, {:.2}] mm (flange axes; 95 % bound {:.2} mm), rotation [{:.3}, {:.3}, \
+         {:.3}] deg (camera axes), target scale {:.2} % (fitted {:.4})",
+        s[0], s[1], s[2], u.translation_bound_95_mm, r[0], r[1], r[2], u.scale_sigma_percent, u.fitted_scale
     );
+    if let Some(c) = &result.refinement_check {
+        println!(
+            "refined vs {} closed form: {:.2} mm / {:.3} deg (limit {:.2} mm / {:.3} deg; closed forms' spread {:.2} \
+             mm / {:.3} deg); result: {}",
+            method.name(),
+            c.shift_mm,
+            c.shift_deg,
+            c.limit_mm,
+            c.limit_deg,
+            c.closed_form_spread_mm,
+            c.closed_form_spread_deg,
+            if c.kept_refined { "refined" } else { "closed form" }
+        );
+    }
     for w in &result.warnings {
         eprintln!("warning: {w}");
     }

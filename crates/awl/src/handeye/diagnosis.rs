@@ -7,7 +7,7 @@ use std::fmt;
 use serde::Serialize;
 
 use crate::handeye::HandEyePose;
-use crate::handeye::motion::all_pairs;
+use crate::handeye::motion::pose_pairs;
 use crate::handeye::park;
 use crate::handeye::residual::{implied_targets, median, residuals, robust_mean};
 
@@ -21,13 +21,19 @@ pub enum Diagnosis {
     RejectionCapReached,
     /// The refinement stopped at its iteration cap.
     RefinementNotConverged,
-    /// The translation's 1-sigma along some direction exceeds `max_translation_sigma_mm`.
+    /// The predicted 95 % bound of the translation's error exceeds `tolerance_mm`.
     TranslationUndetermined,
     /// The target scale's 1-sigma exceeds `max_scale_sigma_percent`: a wrong tag size would pass
     /// unnoticed into the translation.
     ScaleUndetermined,
     /// The poses fit far better with a field inverted, accepted with `allow_inverted_fit`.
     InvertedConvention,
+    /// The `T_camera_target` translations fit significantly better scaled by a factor other than 1:
+    /// the tag or board size given to the detector is wrong.
+    ScaleMismatch,
+    /// The refinement left the closed forms' agreement by more than the noise explains; the result
+    /// is the closed form.
+    RefinementDisagrees,
 }
 
 impl Diagnosis {
@@ -40,6 +46,8 @@ impl Diagnosis {
             Self::TranslationUndetermined => "translation_undetermined",
             Self::ScaleUndetermined => "scale_undetermined",
             Self::InvertedConvention => "inverted_convention",
+            Self::ScaleMismatch => "scale_mismatch",
+            Self::RefinementDisagrees => "refinement_disagrees",
         }
     }
 }
@@ -97,7 +105,8 @@ impl Inversion {
     }
 }
 
-/// How well the poses fit with one inversion (Park-Martin closed form on all of them).
+/// How well the poses fit with one inversion (Park-Martin closed form on all of them), and where
+/// that solution puts the camera and the target.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct InversionFit {
     /// What was inverted.
@@ -106,6 +115,10 @@ pub struct InversionFit {
     pub median_translation_mm: f64,
     /// Median rotation residual over all poses, degrees.
     pub median_rotation_deg: f64,
+    /// The solution's camera distance from the flange (`|t(T_ee_camera)|`), metres.
+    pub camera_from_flange_m: f64,
+    /// The solution's target distance from the robot base (`|t(T_base_target)|`), metres.
+    pub target_from_base_m: f64,
 }
 
 /// The fit of each inversion whose closed form is solvable.
@@ -116,12 +129,19 @@ pub(crate) fn inversion_fits(poses: &[HandEyePose]) -> Vec<InversionFit> {
         .into_iter()
         .filter_map(|inversion| {
             let flipped: Vec<HandEyePose> = poses.iter().map(|p| inversion.apply(p)).collect();
-            let x = park::solve(&all_pairs(&flipped)).ok()?;
+            let x = park::solve(&pose_pairs(&flipped)).ok()?;
             let targets = implied_targets(&flipped, &x);
-            let res = residuals(&targets, &robust_mean(&targets, &all), &every);
+            let target = robust_mean(&targets, &all);
+            let res = residuals(&targets, &target, &every);
             let mut t: Vec<f64> = res.iter().map(|r| r.translation_mm).collect();
             let mut r: Vec<f64> = res.iter().map(|r| r.rotation_deg).collect();
-            Some(InversionFit { inversion, median_translation_mm: median(&mut t), median_rotation_deg: median(&mut r) })
+            Some(InversionFit {
+                inversion,
+                median_translation_mm: median(&mut t),
+                median_rotation_deg: median(&mut r),
+                camera_from_flange_m: x.translation.vector.norm(),
+                target_from_base_m: target.translation.vector.norm(),
+            })
         })
         .collect()
 }

@@ -9,6 +9,8 @@ use crate::handeye::motion::Motion;
 /// Diversity of a set of relative motions (see the module docs of [`crate::handeye`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct MotionDiversity {
+    /// Pose pairs the closed forms used (all of them up to 447 poses, at most 100 000).
+    pub pairs: usize,
     /// Pairs whose arm rotation exceeds `min_pair_angle_deg` (the ones the axes come from).
     pub rotating_pairs: usize,
     /// Largest relative arm rotation over all pairs, degrees.
@@ -44,6 +46,7 @@ pub(crate) fn diversity(motions: &[Motion], min_pair_angle_rad: f64) -> MotionDi
         axis_spread_3d = l[0].max(0.0).sqrt();
     }
     MotionDiversity {
+        pairs: motions.len(),
         rotating_pairs: rotating,
         max_rotation_deg: max_angle.to_degrees(),
         axis_angle_deg,

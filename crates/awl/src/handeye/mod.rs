@@ -7,15 +7,27 @@
 //! camera_from_target_j^-1`; a fixed target makes `A_ij * X = X * B_ij`.
 //!
 //! The method ([`calibrate`]):
-//! 1. a closed form over all pairs: Park-Martin (rotation by Kabsch/SVD on the log-rotations,
+//! 1. a closed form over the pairs: Park-Martin (rotation by Kabsch/SVD on the log-rotations,
 //!    translation by linear least squares), Tsai-Lenz (modified Rodrigues vectors) or Daniilidis
-//!    (dual quaternions, SVD of the stacked 6x8 constraints);
+//!    (dual quaternions, SVD of the stacked 6x8 constraints). Every pair up to 447 poses (100 000
+//!    pairs); beyond, each pose is paired with the `100 000 / N` poses rotating the flange most among
+//!    twice as many spread over the list, a deterministic set of at most 100 000 pairs, so memory and
+//!    time grow linearly with the count;
 //! 2. a Levenberg-Marquardt refinement of `X` jointly with `Y = base_from_target` over all poses,
 //!    starting from the closed form (and the robust mean below for `Y`): per pose the discrepancy
 //!    `D_i = Y^-1 * base_from_ee_i * X * camera_from_target_i` contributes its translation (metres)
 //!    and rotation vector (radians, weighted by [`HandEyeParams::rotation_weight_m`] metres per
 //!    radian); each measurement enters once, unlike the pairs of the closed forms, which is what
-//!    brings the error under 1 mm at 0.5 mm / 0.1 deg detector noise;
+//!    brings the error under 1 mm at 0.5 mm / 0.1 deg detector noise. The refined `X` must stay
+//!    near the closed forms ([`RefinementCheck`]): its shift from the method's closed form is
+//!    compared with the three closed forms' largest disagreement plus 3 sigma of the difference
+//!    (the closed form's by a grouped jackknife over the final inliers and the refinement's from
+//!    step 6, combined), in translation and rotation (on simulated captures the shift is 0.2-1.2 mm
+//!    against limits of 2.5-5.3 mm; the refinement's sigma grows with `rotation_weight_m`, and
+//!    with it the limits); beyond either limit the data hold an error the
+//!    model lacks (a wrong tag size, a biased detector, noise unlike `rotation_weight_m`), the
+//!    result is the closed form (with the robust mean as `Y`) and a
+//!    [`Diagnosis::RefinementDisagrees`] warning says so;
 //! 3. per-pose residuals: each pose implies `base_from_target_i = base_from_ee_i * X *
 //!    camera_from_target_i`; its residual is the translation (mm) and rotation (deg) from their robust
 //!    mean (geometric median of the translations, L1 / Weiszfeld mean of the rotations) over the
@@ -34,11 +46,14 @@
 //!    below `min_axis_angle_deg` the result carries a warning;
 //! 6. uncertainty ([`HandEyeUncertainty`]): the 1-sigma of `T_ee_camera` per axis from the
 //!    refinement's Jacobian over the final inliers, and of a scale factor on the `T_camera_target`
-//!    translations fitted with it (a wrong tag or board size); a warning when the translation's worst
-//!    1-sigma exceeds `max_translation_sigma_mm` (small rotations, or rotations about one axis) or
-//!    the scale's `max_scale_sigma_percent` (pure rotations about the target: every view at one
-//!    distance, so a size error passes into the camera's offset along its optical axis, 4.5 mm per
-//!    percent at 0.45 m, with no rise in the residuals);
+//!    translations fitted with it (a wrong tag or board size); a warning when the translation's
+//!    predicted 95 % error bound (the 0.95 quantile of the 3D error's norm) exceeds `tolerance_mm`
+//!    (small rotations, or rotations about one axis) or the scale's 1-sigma exceeds
+//!    `max_scale_sigma_percent` (pure rotations about the target: every view at one distance, so a
+//!    size error passes into the camera's offset along its optical axis, 4.5 mm per percent at
+//!    0.45 m, with no rise in the residuals). Where the scale is determined, the scale factor that
+//!    fits best ([`HandEyeUncertainty::fitted_scale`]) gives a [`Diagnosis::ScaleMismatch`] warning
+//!    when it differs from 1 by more than `scale_mismatch_percent` and 3 of its sigmas;
 //! 7. the pose convention: Park-Martin solved again with every `T_base_ee`, every `T_camera_target`,
 //!    or both inverted ([`InversionFit`]); when one field inverted fits `inverted_fit_factor` times
 //!    better (median translation residual over all poses) and the median as given exceeds
@@ -46,7 +61,12 @@
 //!    inverted files fit 30-230x worse than the right ones: 28-170 mm against 0.5-0.9 mm). Both fields
 //!    inverted fit exactly as well as the right convention (the solver then returns `T_base_target`
 //!    as `T_ee_camera` and the reverse); that case is refused when the camera comes out farther from
-//!    the flange than the target from the robot base. `allow_inverted_fit` turns both refusals into
+//!    the flange than the target from the robot base. For the same reason the two single inversions
+//!    fit equally well on exact data (each is the other with both fields inverted), and their
+//!    residuals differ only by the lever arms the noise acts on: the field named is the one whose
+//!    solution puts the camera nearer the flange relative to the target's distance from the base
+//!    ([`InversionFit::camera_from_flange_m`], [`InversionFit::target_from_base_m`]), the other is
+//!    quoted in the message. `allow_inverted_fit` turns the refusals into
 //!    [`Diagnosis::InvertedConvention`] warnings.
 //!
 //! Every warning is a [`HandEyeWarning`]: a [`Diagnosis`] (serialised by name) and a message saying
@@ -88,7 +108,7 @@ pub use capture::{CaptureCalibration, CaptureParams, CaptureViewReport, FlipChoi
 pub use capture_bound::{BOUND_PROBABILITY, CaptureBound};
 pub use diagnosis::{Diagnosis, HandEyeWarning, Inversion, InversionFit};
 pub use diversity::MotionDiversity;
-pub use refine::RefineStats;
+pub use refine::{RefineStats, RefinementCheck};
 pub use residual::PoseResidual;
 pub use solve::calibrate;
 pub use uncertainty::HandEyeUncertainty;
@@ -153,12 +173,17 @@ pub struct HandEyeParams {
     pub min_axis_angle_deg: f64,
     /// Below this axis angle calibration is refused as degenerate, degrees. Default 0.5.
     pub degenerate_axis_angle_deg: f64,
-    /// Warn ([`Diagnosis::TranslationUndetermined`]) when the translation's 1-sigma along its worst
-    /// direction exceeds this, millimetres. Default 1.
-    pub max_translation_sigma_mm: f64,
+    /// The error of `T_ee_camera`'s translation the user can accept, millimetres: warn
+    /// ([`Diagnosis::TranslationUndetermined`]) when its predicted 95 % bound
+    /// ([`HandEyeUncertainty::translation_bound_95_mm`], the 0.95 quantile of the 3D error's norm)
+    /// exceeds it. Default 2.
+    pub tolerance_mm: f64,
     /// Warn ([`Diagnosis::ScaleUndetermined`]) when the 1-sigma of a scale factor on the target
     /// translations exceeds this, percent. Default 1.
     pub max_scale_sigma_percent: f64,
+    /// Warn ([`Diagnosis::ScaleMismatch`]) when the fitted scale factor on the target translations
+    /// differs from 1 by more than this and by more than 3 of its sigmas, percent. Default 1.
+    pub scale_mismatch_percent: f64,
     /// The residual noise the sigmas assume at least (per component), millimetres. Default 0.25.
     pub min_noise_mm: f64,
     /// Refuse when the poses fit this many times better (median translation residual) with a field
@@ -166,8 +191,9 @@ pub struct HandEyeParams {
     pub inverted_fit_factor: f64,
     /// Accept such poses as given, with a [`Diagnosis::InvertedConvention`] warning. Default false.
     pub allow_inverted_fit: bool,
-    /// The most poses a calibration takes (the closed forms use every pose pair: memory and time
-    /// grow with the square of the count). Default 1000 (500 k pairs).
+    /// The most poses a calibration takes. The closed forms use every pose pair up to 447 poses and
+    /// a bounded set of 100 000 pairs beyond (module docs), so memory and time grow linearly with the
+    /// count (5 000 poses: about a second). Default 100 000.
     pub max_poses: usize,
 }
 
@@ -185,12 +211,13 @@ impl Default for HandEyeParams {
             min_pair_angle_deg: 5.0,
             min_axis_angle_deg: 20.0,
             degenerate_axis_angle_deg: 0.5,
-            max_translation_sigma_mm: 1.0,
+            tolerance_mm: 2.0,
             max_scale_sigma_percent: 1.0,
+            scale_mismatch_percent: 1.0,
             min_noise_mm: 0.25,
             inverted_fit_factor: 5.0,
             allow_inverted_fit: false,
-            max_poses: 1000,
+            max_poses: 100_000,
         }
     }
 }
@@ -198,10 +225,14 @@ impl Default for HandEyeParams {
 /// What [`calibrate`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HandEyeResult {
-    /// `T_ee_camera`: the refined solution (the closed form when refinement is off).
+    /// `T_ee_camera`: the refined solution (the closed form when refinement is off, or when the
+    /// refinement left the closed forms' agreement: [`HandEyeResult::refinement_check`]).
     pub ee_from_camera: Isometry3<f64>,
     /// The method's closed-form solution on the final inlier poses (before refinement).
     pub closed_form_ee_from_camera: Isometry3<f64>,
+    /// The refinement's solution on the final inlier poses, kept or not (the closed form when
+    /// refinement is off).
+    pub refined_ee_from_camera: Isometry3<f64>,
     /// `T_base_target`: the refined `Y` (the inliers' robust mean when refinement is off).
     pub base_from_target: Isometry3<f64>,
     /// The closed-form method used.
@@ -226,6 +257,9 @@ pub struct HandEyeResult {
     pub diversity: MotionDiversity,
     /// The final refinement's statistics (zero iterations when refinement is off).
     pub refinement: RefineStats,
+    /// How far the refinement moved from the closed forms and whether it was kept (none when
+    /// refinement is off).
+    pub refinement_check: Option<RefinementCheck>,
     /// Non-fatal problems, each named by its [`Diagnosis`].
     pub warnings: Vec<HandEyeWarning>,
 }

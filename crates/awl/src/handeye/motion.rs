@@ -14,19 +14,57 @@ pub(crate) struct Motion {
     pub b: Isometry3<f64>,
 }
 
-/// The motions of all pairs `i < j` of `poses`, in lexicographic order (OpenCV's pairs and
-/// directions, so the closed forms match `cv2.calibrateHandEye` to rounding).
-pub(crate) fn all_pairs(poses: &[HandEyePose]) -> Vec<Motion> {
-    let mut motions = Vec::with_capacity(poses.len() * poses.len().saturating_sub(1) / 2);
-    for (i, pi) in poses.iter().enumerate() {
-        for pj in &poses[i + 1..] {
-            motions.push(Motion {
-                a: pj.base_from_ee.inverse() * pi.base_from_ee,
-                b: pj.camera_from_target * pi.camera_from_target.inverse(),
-            });
-        }
+/// The most pose pairs the closed forms and the convention check use: up to 447 poses every pair
+/// (`N (N - 1) / 2 <= 100 000`), beyond that a bounded set ([`pose_pairs`]).
+pub(crate) const MAX_PAIRS: usize = 100_000;
+
+fn motion(pi: &HandEyePose, pj: &HandEyePose) -> Motion {
+    Motion {
+        a: pj.base_from_ee.inverse() * pi.base_from_ee,
+        b: pj.camera_from_target * pi.camera_from_target.inverse(),
     }
-    motions
+}
+
+/// The motions of the pose pairs `i < j` the closed forms use, in lexicographic order (OpenCV's
+/// pairs and directions, so the closed forms match `cv2.calibrateHandEye` to rounding).
+///
+/// Every pair while there are at most [`MAX_PAIRS`] of them. Beyond that (more than 447 poses),
+/// each pose `i` is paired with the `k = MAX_PAIRS / N` poses that rotate the flange most among
+/// `2k` candidates `i + 1 + m * step` (modulo `N`, `step = max(1, (N - 1) / 2k)`, `m < 2k`): a
+/// deterministic set of at most `N k <= MAX_PAIRS` pairs (duplicates removed) in which every pose
+/// takes part, so memory and time grow linearly with the count.
+pub(crate) fn pose_pairs(poses: &[HandEyePose]) -> Vec<Motion> {
+    let n = poses.len();
+    let all = n * n.saturating_sub(1) / 2;
+    if all <= MAX_PAIRS {
+        let mut motions = Vec::with_capacity(all);
+        for (i, pi) in poses.iter().enumerate() {
+            for pj in &poses[i + 1..] {
+                motions.push(motion(pi, pj));
+            }
+        }
+        return motions;
+    }
+    let k = (MAX_PAIRS / n).max(1);
+    let candidates = (2 * k).min(n - 1);
+    let step = ((n - 1) / candidates).max(1);
+    let mut pairs: Vec<(usize, usize)> = Vec::with_capacity(n * k);
+    let mut scored: Vec<(f64, usize)> = Vec::with_capacity(candidates);
+    for i in 0..n {
+        scored.clear();
+        for m in 0..candidates {
+            let j = (i + 1 + m * step) % n;
+            if j != i {
+                let angle = poses[i].base_from_ee.rotation.angle_to(&poses[j].base_from_ee.rotation);
+                scored.push((angle, j));
+            }
+        }
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        pairs.extend(scored.iter().take(k).map(|&(_, j)| (i.min(j), i.max(j))));
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs.into_iter().map(|(i, j)| motion(&poses[i], &poses[j])).collect()
 }
 
 pub(crate) use crate::transform::skew;

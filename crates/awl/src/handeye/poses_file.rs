@@ -22,10 +22,44 @@ struct RawPose {
     camera_target: Rows,
 }
 
+/// The most poses a poses file may hold (the default [`crate::handeye::HandEyeParams::max_poses`]);
+/// a longer list is refused while it is read, before its poses are stored.
+pub const MAX_FILE_POSES: usize = 100_000;
+
+/// The largest poses file read, bytes: 4 kB a pose (a pretty-printed pose with 17-digit numbers
+/// takes about 1.5 kB).
+pub const MAX_FILE_BYTES: u64 = 4096 * MAX_FILE_POSES as u64;
+
 #[derive(Deserialize, Serialize)]
 struct RawPoses {
     format: String,
+    #[serde(deserialize_with = "bounded_poses")]
     poses: Vec<RawPose>,
+}
+
+/// The `poses` list, refused once it holds more than [`MAX_FILE_POSES`] entries (the vector grows
+/// only as entries arrive, so a huge count claims no memory in advance).
+fn bounded_poses<'de, D: serde::Deserializer<'de>>(deserializer: D) -> std::result::Result<Vec<RawPose>, D::Error> {
+    struct Bounded;
+    impl<'de> serde::de::Visitor<'de> for Bounded {
+        type Value = Vec<RawPose>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "a list of at most {MAX_FILE_POSES} poses")
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Self::Value, A::Error> {
+            let mut poses = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(1024));
+            while let Some(p) = seq.next_element()? {
+                if poses.len() == MAX_FILE_POSES {
+                    return Err(serde::de::Error::custom(format!(
+                        "more than {MAX_FILE_POSES} poses: split the capture, or calibrate from a subset"
+                    )));
+                }
+                poses.push(p);
+            }
+            Ok(poses)
+        }
+    }
+    deserializer.deserialize_seq(Bounded)
 }
 
 /// For an error at 1-based (line, column): the field `poses[i].KEY` whose matrix holds it, found by
@@ -46,7 +80,7 @@ fn locate(text: &str, line: usize, column: usize) -> Option<(usize, &'static str
 /// Parses the text of a poses file (`path` only names it in errors).
 ///
 /// # Errors
-/// [`Error::Format`] for invalid JSON; [`Error::Field`] naming `format`, `poses` or
+/// [`Error::Format`] for invalid JSON or more than [`MAX_FILE_POSES`] poses; [`Error::Field`] naming `format`, `poses` or
 /// `poses[i].T_base_ee` / `poses[i].T_camera_target` for a wrong format tag, a non-finite number
 /// (located by pose and field), a malformed or non-rigid matrix.
 pub fn parse_poses(path: &Path, bytes: &[u8]) -> Result<Vec<HandEyePose>> {
@@ -59,6 +93,9 @@ pub fn parse_poses(path: &Path, bytes: &[u8]) -> Result<Vec<HandEyePose>> {
                 Some(Error::Format { message, .. }) => message,
                 _ => e.to_string(),
             };
+            if message.contains(&format!("more than {MAX_FILE_POSES} poses")) {
+                return Err(Error::field(path, "poses", message));
+            }
             return Err(match locate(&text, e.line(), e.column()) {
                 Some((i, _)) if message.starts_with("missing field") => {
                     Error::field(path, format!("poses[{i}]"), message)
@@ -86,8 +123,19 @@ pub fn parse_poses(path: &Path, bytes: &[u8]) -> Result<Vec<HandEyePose>> {
 /// Reads a poses file.
 ///
 /// # Errors
-/// [`Error::Io`] when it cannot be read, else as [`parse_poses`].
+/// [`Error::Io`] when it cannot be read; [`Error::Format`] when it is larger than
+/// [`MAX_FILE_BYTES`] (checked before reading); else as [`parse_poses`].
 pub fn read_poses(path: &Path) -> Result<Vec<HandEyePose>> {
+    let size = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+    if size > MAX_FILE_BYTES {
+        return Err(Error::format(
+            path,
+            format!(
+                "{size} bytes, more than the {MAX_FILE_BYTES} a poses file of {MAX_FILE_POSES} poses may take: \
+                 split the capture"
+            ),
+        ));
+    }
     parse_poses(path, &read_bytes(path)?)
 }
 

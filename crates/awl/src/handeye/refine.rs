@@ -32,6 +32,32 @@ pub struct RefineStats {
     pub final_cost: f64,
 }
 
+/// How far the refinement moved `T_ee_camera` from the closed forms, against how far the noise
+/// lets it move (see [`crate::handeye`]'s module docs, step 2).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RefinementCheck {
+    /// Translation between the refined and the method's closed-form `T_ee_camera`, millimetres.
+    pub shift_mm: f64,
+    /// Rotation between them, degrees.
+    pub shift_deg: f64,
+    /// Largest translation between two of the three closed forms (Park, Tsai, Daniilidis), millimetres.
+    pub closed_form_spread_mm: f64,
+    /// Largest rotation between two of them, degrees.
+    pub closed_form_spread_deg: f64,
+    /// The method's closed form's 1-sigma (3D RMS) by a grouped jackknife over the poses, millimetres.
+    pub closed_form_sigma_mm: f64,
+    /// Its rotation's 1-sigma (3D RMS), degrees.
+    pub closed_form_sigma_deg: f64,
+    /// The largest translation shift the noise explains: the spread plus 3 sigma of the difference
+    /// (the closed form's and the refinement's 3D sigmas combined), millimetres.
+    pub limit_mm: f64,
+    /// The same for the rotation, degrees.
+    pub limit_deg: f64,
+    /// True when the refined solution is the result; false when the shift exceeded a limit and the
+    /// closed form is the result.
+    pub kept_refined: bool,
+}
+
 /// The weighted residual of one pose.
 pub(crate) fn residual(p: &HandEyePose, x: &Isometry3<f64>, y_inv: &Isometry3<f64>, w: f64) -> Vector6<f64> {
     let d = y_inv * p.base_from_ee * x * p.camera_from_target;

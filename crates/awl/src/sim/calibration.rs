@@ -42,7 +42,7 @@ pub enum CalibrationMotion {
 /// What to simulate; defaults in [`Default`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CalibrationSimParams {
-    /// Number of poses (3 to 1000). Default 15.
+    /// Number of poses (3 to 100 000). Default 15.
     pub count: usize,
     /// Seed of every random choice. Default 1.
     pub seed: u64,
@@ -100,8 +100,8 @@ pub struct CalibrationCapture {
 }
 
 fn validate(p: &CalibrationSimParams) -> Result<()> {
-    if !(3..=1000).contains(&p.count) {
-        return Err(Error::invalid("count", format!("must be 3 to 1000, got {}", p.count)));
+    if !(3..=100_000).contains(&p.count) {
+        return Err(Error::invalid("count", format!("must be 3 to 100000, got {}", p.count)));
     }
     let noise = [p.camera_noise_mm, p.camera_noise_deg, p.arm_noise_mm, p.arm_noise_deg];
     if noise.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
