@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::handeye::HandEyePose;
 use crate::io::scan::{parse_json, pose_field};
-use crate::io::{read_bytes, write_atomic};
+use crate::io::write_atomic;
 use crate::transform::{Rows, rows_from_isometry};
 
 /// The `format` value of a poses file.
@@ -126,17 +126,7 @@ pub fn parse_poses(path: &Path, bytes: &[u8]) -> Result<Vec<HandEyePose>> {
 /// [`Error::Io`] when it cannot be read; [`Error::Format`] when it is larger than
 /// [`MAX_FILE_BYTES`] (checked before reading); else as [`parse_poses`].
 pub fn read_poses(path: &Path) -> Result<Vec<HandEyePose>> {
-    let size = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
-    if size > MAX_FILE_BYTES {
-        return Err(Error::format(
-            path,
-            format!(
-                "{size} bytes, more than the {MAX_FILE_BYTES} a poses file of {MAX_FILE_POSES} poses may take: \
-                 split the capture"
-            ),
-        ));
-    }
-    parse_poses(path, &read_bytes(path)?)
+    parse_poses(path, &crate::io::read_bytes_at_most(path, MAX_FILE_BYTES)?)
 }
 
 /// The JSON text of a poses file.
@@ -174,7 +164,7 @@ pub fn read_ee_from_camera(path: &Path) -> Result<nalgebra::Isometry3<f64>> {
         #[serde(rename = "T_ee_camera")]
         ee_camera: Option<Rows>,
     }
-    let raw: Raw = parse_json(path, &read_bytes(path)?)?;
+    let raw: Raw = crate::io::scan::read_json(path)?;
     let rows = raw.ee_camera.ok_or_else(|| Error::field(path, "T_ee_camera", "missing"))?;
     pose_field(path, "T_ee_camera", &rows)
 }
