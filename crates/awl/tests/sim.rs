@@ -25,7 +25,7 @@ use parry3d_f64::math::Vector as PVector;
 use parry3d_f64::query::{PointQuery, Ray, RayCast};
 
 fn params(scene: SceneKind, noise: NoiseLevel, seed: u64, views: usize) -> SimParams {
-    SimParams { scene, views, seed, noise, shot: None, camera_seed: None, bare: false }
+    SimParams { scene, views, seed, noise, shot: None, camera_seed: None, bare: false, fixed_base: false }
 }
 
 fn cached(cell: &'static OnceLock<Simulation>, p: SimParams) -> &'static Simulation {
@@ -497,4 +497,45 @@ fn a_shot_takes_extra_views_where_the_arm_is_sent() {
     bad[1].translation.vector.x = f64::NAN;
     let e = awl::sim::simulate_with_views(&p, &bad).expect_err("NaN").to_string();
     assert!(e.contains("views[1].T_base_ee") && e.contains("not finite"), "{e}");
+}
+
+/// A fixed arm (`fixed_base`): every view from one base stop, recorded without SLAM error, the
+/// cameras spread over about 200 degrees of azimuth around the workpiece on the base's side, 15 to
+/// 60 degrees up, each looking at it (the object's centre within 0.1 m of the optical axis).
+#[test]
+fn a_fixed_arm_takes_every_view_from_one_base_pose() {
+    let sim = simulate(&SimParams { fixed_base: true, ..params(SceneKind::Box, NoiseLevel::Realistic, 3, 20) })
+        .expect("simulate");
+    // the centre of the CAD's bounding box, world frame
+    let (lo, hi) = sim.cad.vertices.iter().fold(
+        (Vector3::repeat(f64::MAX), Vector3::repeat(f64::MIN)),
+        |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
+    );
+    let centre = sim.truth.world_from_object * Point3::from((lo + hi) * 0.5);
+    let base = sim.truth.views[0].world_from_base.expect("a base pose");
+    let mut azimuths = Vec::new();
+    for (i, (v, t)) in sim.scan.views.iter().zip(&sim.truth.views).enumerate() {
+        assert_eq!(v.extra.get("base_stop").and_then(serde_json::Value::as_u64), Some(0), "view {i}");
+        let awl::scan::ViewPose::Chain { world_from_base, .. } = v.pose else { panic!("view {i}: a chain pose") };
+        // no SLAM error: the recorded base is the true one, the same for every view
+        assert!((world_from_base.to_homogeneous() - base.to_homogeneous()).abs().max() < 1e-12, "view {i}");
+        assert_eq!(t.world_from_base, Some(base));
+        let eye = t.world_from_camera * Point3::origin();
+        let axis = t.world_from_camera.rotation * Vector3::z();
+        let to_centre = centre - eye;
+        let off_axis = (to_centre - axis * to_centre.dot(&axis)).norm();
+        assert!(off_axis < 0.1, "view {i} looks {off_axis} m beside the centre");
+        let el = (eye.z - centre.z).atan2((eye - centre).xy().norm()).to_degrees();
+        assert!((5.0..=65.0).contains(&el), "view {i}: elevation {el} deg");
+        azimuths.push((eye.y - centre.y).atan2(eye.x - centre.x));
+    }
+    // the spread of azimuths about the base's direction
+    let towards = (base.translation.y - centre.y).atan2(base.translation.x - centre.x);
+    let rel: Vec<f64> = azimuths
+        .iter()
+        .map(|a| (a - towards + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI)
+        .collect();
+    let span = rel.iter().copied().fold(f64::MIN, f64::max) - rel.iter().copied().fold(f64::MAX, f64::min);
+    println!("fixed arm: {} views over {:.0} deg of azimuth", rel.len(), span.to_degrees());
+    assert!(span.to_degrees() > 150.0 && span.to_degrees() < 215.0, "{}", span.to_degrees());
 }

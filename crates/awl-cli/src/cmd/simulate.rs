@@ -80,6 +80,10 @@ pub struct SimulateArgs {
     /// cylinder, nothing then constrains the views' spin about its axis.
     #[arg(long, conflicts_with_all = ["shot", "capture"])]
     pub bare: bool,
+    /// A fixed arm (scan mode only): every view from one base pose, the camera moved around the
+    /// workpiece on the base's side (200 degrees of azimuth, 15 to 60 degrees of elevation).
+    #[arg(long, conflicts_with_all = ["shot", "capture"])]
+    pub fixed_base: bool,
     /// A shot's extra views: the flange poses of a views.json (`awl plan-views -o`), each taken after the
     /// shot's own views with the arm's noise (shot mode only).
     #[arg(long, requires = "shot")]
@@ -113,7 +117,16 @@ fn params(args: &SimulateArgs) -> SimParams {
         ShotArg::Tilt30 => ShotPose::Tilt30,
     });
     let views = args.views.unwrap_or(if shot.is_some() { 2 } else { 12 });
-    SimParams { scene, views, seed: args.seed, noise, shot, camera_seed: args.camera_seed, bare: args.bare }
+    SimParams {
+        scene,
+        views,
+        seed: args.seed,
+        noise,
+        shot,
+        camera_seed: args.camera_seed,
+        bare: args.bare,
+        fixed_base: args.fixed_base,
+    }
 }
 
 fn capture_params(args: &SimulateArgs) -> CaptureParams {

@@ -146,12 +146,24 @@ pub struct SimParams {
     /// workpiece then leaves a motion that no view's surface constrains (the cylinder's spin
     /// about its axis).
     pub bare: bool,
+    /// A fixed arm (a scan only): every view from one base pose, the arm moving the camera around
+    /// the workpiece on the base's side, no SLAM error (world = the robot base's frame).
+    pub fixed_base: bool,
 }
 
 impl SimParams {
     /// A realistic 12-view scan of `scene` with seed 1.
     pub fn scan(scene: SceneKind) -> Self {
-        Self { scene, views: 12, seed: 1, noise: NoiseLevel::Realistic, shot: None, camera_seed: None, bare: false }
+        Self {
+            scene,
+            views: 12,
+            seed: 1,
+            noise: NoiseLevel::Realistic,
+            shot: None,
+            camera_seed: None,
+            bare: false,
+            fixed_base: false,
+        }
     }
 
     /// A realistic 2-view shot of `scene` in `pose` with seed 1.
@@ -164,6 +176,7 @@ impl SimParams {
             shot: Some(pose),
             camera_seed: None,
             bare: false,
+            fixed_base: false,
         }
     }
 

@@ -54,7 +54,7 @@ pub(crate) fn scan_plan(wp: &Workpiece, params: &SimParams, camera: &DepthCamera
     let need = params.views.div_ceil(3).min(4);
     let mut best: Option<(usize, Vec<RigView>, Vec<TagObservation>)> = None;
     for attempt in 0..40 {
-        let views = plan_scan(&layout, wp.centre.z, params.views, params.seed, attempt);
+        let views = plan_scan(&layout, wp.centre.z, params.views, params.seed, attempt, params.fixed_base);
         let observations = observe_all(&world, wp, camera, &layout.world_from_object, &views);
         let good = observations.iter().filter(|o| o.good()).count();
         if best.as_ref().is_none_or(|b| good > b.0) {
@@ -69,7 +69,7 @@ pub(crate) fn scan_plan(wp: &Workpiece, params: &SimParams, camera: &DepthCamera
         world,
         world_from_object: layout.world_from_object,
         views,
-        stops: stop_count(params.views),
+        stops: if params.fixed_base { 1 } else { stop_count(params.views) },
         observations,
         shot: None,
     })
@@ -126,7 +126,8 @@ pub(crate) fn records(
     noise: DepthNoise,
 ) -> (Scan, Truth) {
     let scale = params.noise.scale();
-    let errors = pose_errors(params.seed, plan.stops, plan.views.len(), scale, params.shot.is_none());
+    let slam = params.shot.is_none() && !params.fixed_base;
+    let errors = pose_errors(params.seed, plan.stops, plan.views.len(), scale, slam);
     let ee_from_camera = true_ee_from_camera();
     let views = plan
         .views

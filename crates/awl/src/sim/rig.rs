@@ -89,8 +89,21 @@ fn base_pose(layout: &ScanLayout, rng: &mut ChaCha8Rng, az: f64, reach: f64) -> 
 /// Plans `n` views around the workpiece (attempt `attempt` of the seed): azimuths spread evenly
 /// around 360 degrees, a low (18-30 deg) and a high (40-52 deg) elevation at each base stop, the camera
 /// `0.75 + centre height/2` to `+0.35` m from the centre, aimed at it with a little jitter.
-pub(crate) fn plan_scan(layout: &ScanLayout, centre_height: f64, n: usize, seed: u64, attempt: u64) -> Vec<RigView> {
+///
+/// With `fixed_base` (a fixed arm): one stop, the azimuths spread over the 200 degrees facing the
+/// base, the elevation rising from 15 to 60 degrees along them.
+pub(crate) fn plan_scan(
+    layout: &ScanLayout,
+    centre_height: f64,
+    n: usize,
+    seed: u64,
+    attempt: u64,
+    fixed_base: bool,
+) -> Vec<RigView> {
     let mut rng = rng(seed, Stream::Rig, attempt, 0);
+    if fixed_base {
+        return plan_fixed(layout, centre_height, n, &mut rng);
+    }
     let stops = stop_count(n);
     let phase = uniform(&mut rng, 0.0, std::f64::consts::TAU);
     let d_lo = 0.75 + 0.5 * centre_height;
@@ -122,6 +135,35 @@ pub(crate) fn plan_scan(layout: &ScanLayout, centre_height: f64, n: usize, seed:
         }
     }
     views
+}
+
+/// A fixed arm's views (see [`plan_scan`]): the base 1.1 m from the workpiece's centre at a random
+/// azimuth, the cameras `0.55 + centre height/2` to `+0.25` m from the centre.
+fn plan_fixed(layout: &ScanLayout, centre_height: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<RigView> {
+    let base_az = uniform(rng, 0.0, std::f64::consts::TAU);
+    let c = layout.centre;
+    let at = c.xy().coords + Vector2::new(base_az.cos(), base_az.sin()) * 1.1;
+    let facing = (-base_az.sin()).atan2(-base_az.cos());
+    let world_from_base = Isometry3::from_parts(
+        Translation3::new(at.x, at.y, BASE_HEIGHT),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), facing),
+    );
+    let d_lo = 0.55 + 0.5 * centre_height;
+    let ee_from_camera = true_ee_from_camera();
+    (0..n)
+        .map(|k| {
+            let f = if n > 1 { k as f64 / (n - 1) as f64 } else { 0.5 };
+            let az = base_az + (f - 0.5) * 200f64.to_radians() + uniform(rng, -3.0, 3.0).to_radians();
+            let el =
+                (15.0 + 45.0 * ((k * 7) % n.max(1)) as f64 / n.max(1) as f64 + uniform(rng, -3.0, 3.0)).to_radians();
+            let eye = camera_position(layout, az, el, uniform(rng, d_lo, d_lo + 0.25));
+            let jitter = Vector3::new(normal(rng), normal(rng), normal(rng)) * 0.02;
+            let roll = normal(rng) * 10f64.to_radians();
+            let world_from_camera = look_at(&eye, &(c + jitter), roll);
+            let base_from_ee = world_from_base.inverse() * world_from_camera * ee_from_camera.inverse();
+            RigView { stop: 0, world_from_base, base_from_ee, world_from_camera }
+        })
+        .collect()
 }
 
 /// Pose errors of a scan, scaled by the noise level: one SLAM error per base stop (1-3 cm in xy,
