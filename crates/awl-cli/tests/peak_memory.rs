@@ -27,6 +27,11 @@ fn awl_peak(args: &[&str]) -> (bool, String, f64) {
         .args(args)
         .output()
         .expect("run awl under time");
+    peak_of(&out)
+}
+
+/// (exit success, stdout + stderr, peak RSS in MB) of a run under [`TIME`].
+fn peak_of(out: &std::process::Output) -> (bool, String, f64) {
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     let kb: f64 = stderr
         .lines()
@@ -191,6 +196,10 @@ fn malformed_inputs_peak_at_most_twice_their_valid_part() {
     println!("{}", report.join("\n"));
 }
 
+fn text_of(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 /// Runs `awl args` under [`TIME`] and `timeout 30`; returns (exit success, text, peak RSS in MB),
 /// with a failure when it is still running after 30 s (a hang).
 fn awl_peak_no_hang(args: &[&str]) -> (bool, String, f64) {
@@ -200,15 +209,8 @@ fn awl_peak_no_hang(args: &[&str]) -> (bool, String, f64) {
         .args(args)
         .output()
         .expect("run awl under time and timeout");
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_ne!(out.status.code(), Some(124), "awl {args:?} still ran after 30 s (a hang): {stderr}");
-    let kb: f64 = stderr
-        .lines()
-        .filter_map(|l| l.strip_prefix("awl-peak-kb "))
-        .next_back()
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no peak from {TIME}: {stderr}"));
-    (out.status.success(), format!("{}{stderr}", String::from_utf8_lossy(&out.stdout)), kb / 1024.0)
+    assert_ne!(out.status.code(), Some(124), "awl {args:?} still ran after 30 s (a hang): {}", text_of(&out));
+    peak_of(&out)
 }
 
 /// The length an LZF stream of literal runs and back-references decodes to.

@@ -507,10 +507,10 @@ fn a_fixed_arm_takes_every_view_from_one_base_pose() {
     let sim = simulate(&SimParams { fixed_base: true, ..params(SceneKind::Box, NoiseLevel::Realistic, 3, 20) })
         .expect("simulate");
     // the centre of the CAD's bounding box, world frame
-    let (lo, hi) = sim.cad.vertices.iter().fold(
-        (Vector3::repeat(f64::MAX), Vector3::repeat(f64::MIN)),
-        |(lo, hi), p| (lo.inf(&p.coords), hi.sup(&p.coords)),
-    );
+    let (lo, hi) =
+        sim.cad.vertices.iter().fold((Vector3::repeat(f64::MAX), Vector3::repeat(f64::MIN)), |(lo, hi), p| {
+            (lo.inf(&p.coords), hi.sup(&p.coords))
+        });
     let centre = sim.truth.world_from_object * Point3::from((lo + hi) * 0.5);
     let base = sim.truth.views[0].world_from_base.expect("a base pose");
     let mut azimuths = Vec::new();

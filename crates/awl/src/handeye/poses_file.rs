@@ -37,29 +37,11 @@ struct RawPoses {
     poses: Vec<RawPose>,
 }
 
-/// The `poses` list, refused once it holds more than [`MAX_FILE_POSES`] entries (the vector grows
-/// only as entries arrive, so a huge count claims no memory in advance).
+/// The `poses` list, refused once it holds more than [`MAX_FILE_POSES`] entries (as it is parsed).
 fn bounded_poses<'de, D: serde::Deserializer<'de>>(deserializer: D) -> std::result::Result<Vec<RawPose>, D::Error> {
-    struct Bounded;
-    impl<'de> serde::de::Visitor<'de> for Bounded {
-        type Value = Vec<RawPose>;
-        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            write!(f, "a list of at most {MAX_FILE_POSES} poses")
-        }
-        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Self::Value, A::Error> {
-            let mut poses = Vec::with_capacity(seq.size_hint().unwrap_or(0).min(1024));
-            while let Some(p) = seq.next_element()? {
-                if poses.len() == MAX_FILE_POSES {
-                    return Err(serde::de::Error::custom(format!(
-                        "more than {MAX_FILE_POSES} poses: split the capture, or calibrate from a subset"
-                    )));
-                }
-                poses.push(p);
-            }
-            Ok(poses)
-        }
-    }
-    deserializer.deserialize_seq(Bounded)
+    crate::io::scan::at_most(deserializer, MAX_FILE_POSES, || {
+        format!("more than {MAX_FILE_POSES} poses: split the capture, or calibrate from a subset")
+    })
 }
 
 /// For an error at 1-based (line, column): the field `poses[i].KEY` whose matrix holds it, found by

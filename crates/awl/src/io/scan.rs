@@ -77,26 +77,44 @@ pub const MAX_VIEWS: usize = 100_000;
 
 /// `views`, refused at its [`MAX_VIEWS`]` + 1`-th entry.
 fn at_most_views<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<RawView>, D::Error> {
-    struct AtMost;
-    impl<'de> serde::de::Visitor<'de> for AtMost {
-        type Value = Vec<RawView>;
+    at_most(d, MAX_VIEWS, || {
+        format!("`views` lists more than {MAX_VIEWS} views, the most awl reads from one scan: split the scan")
+    })
+}
+
+/// A JSON list refused with the message `too_many` at its `max + 1`-th entry, as it is parsed: the
+/// vector grows only as entries arrive, so a huge list claims no memory in advance.
+pub(crate) fn at_most<'de, D, T>(
+    d: D,
+    max: usize,
+    too_many: impl Fn() -> String,
+) -> std::result::Result<Vec<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    struct AtMost<T, F> {
+        max: usize,
+        too_many: F,
+        item: std::marker::PhantomData<T>,
+    }
+    impl<'de, T: Deserialize<'de>, F: Fn() -> String> serde::de::Visitor<'de> for AtMost<T, F> {
+        type Value = Vec<T>;
         fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            write!(f, "a list of at most {MAX_VIEWS} views")
+            write!(f, "a list of at most {} entries", self.max)
         }
-        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Vec<RawView>, A::Error> {
-            let mut views = Vec::new();
-            while let Some(view) = seq.next_element()? {
-                if views.len() == MAX_VIEWS {
-                    return Err(serde::de::Error::custom(format!(
-                        "`views` lists more than {MAX_VIEWS} views, the most awl reads from one scan: split the scan"
-                    )));
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Vec<T>, A::Error> {
+            let mut items = Vec::new();
+            while let Some(item) = seq.next_element()? {
+                if items.len() == self.max {
+                    return Err(serde::de::Error::custom((self.too_many)()));
                 }
-                views.push(view);
+                items.push(item);
             }
-            Ok(views)
+            Ok(items)
         }
     }
-    d.deserialize_seq(AtMost)
+    d.deserialize_seq(AtMost { max, too_many, item: std::marker::PhantomData })
 }
 
 /// [`pose_field`], re-orthonormalising a rotation off by float32 rounding
