@@ -500,8 +500,9 @@ fn a_shot_takes_extra_views_where_the_arm_is_sent() {
 }
 
 /// A fixed arm (`fixed_base`): every view from one base stop, recorded without SLAM error, the
-/// cameras spread over about 200 degrees of azimuth around the workpiece on the base's side, 15 to
-/// 60 degrees up, each looking at it (the object's centre within 0.1 m of the optical axis).
+/// cameras spread over about 140 degrees of azimuth around the workpiece on the base's side, 12 to
+/// 58 degrees up, within 1.3 m of the base (a UR10e's reach), each looking at the workpiece (its
+/// centre within 0.1 m of the optical axis).
 #[test]
 fn a_fixed_arm_takes_every_view_from_one_base_pose() {
     let sim = simulate(&SimParams { fixed_base: true, ..params(SceneKind::Box, NoiseLevel::Realistic, 3, 20) })
@@ -526,7 +527,9 @@ fn a_fixed_arm_takes_every_view_from_one_base_pose() {
         let off_axis = (to_centre - axis * to_centre.dot(&axis)).norm();
         assert!(off_axis < 0.1, "view {i} looks {off_axis} m beside the centre");
         let el = (eye.z - centre.z).atan2((eye - centre).xy().norm()).to_degrees();
-        assert!((5.0..=65.0).contains(&el), "view {i}: elevation {el} deg");
+        assert!((5.0..=60.0).contains(&el), "view {i}: elevation {el} deg");
+        let reach = (eye - Point3::from(base.translation.vector)).norm();
+        assert!(reach < 1.3, "view {i}: the camera is {reach} m from the base");
         azimuths.push((eye.y - centre.y).atan2(eye.x - centre.x));
     }
     // the spread of azimuths about the base's direction
@@ -537,5 +540,5 @@ fn a_fixed_arm_takes_every_view_from_one_base_pose() {
         .collect();
     let span = rel.iter().copied().fold(f64::MIN, f64::max) - rel.iter().copied().fold(f64::MAX, f64::min);
     println!("fixed arm: {} views over {:.0} deg of azimuth", rel.len(), span.to_degrees());
-    assert!(span.to_degrees() > 150.0 && span.to_degrees() < 215.0, "{}", span.to_degrees());
+    assert!(span.to_degrees() > 120.0 && span.to_degrees() < 155.0, "{}", span.to_degrees());
 }

@@ -225,3 +225,34 @@ fn a_scan_whose_registration_split_leaves_the_split_stops_out_of_the_hand_eye() 
     assert!(t < 0.003 && r.to_degrees() < 0.1, "{} mm {} deg", t * 1e3, r.to_degrees());
     assert!(he.warning.is_empty(), "{}", he.warning);
 }
+
+/// Issue 73: a fixed arm's scan is one base stop; every pair of its views is an `A X = X B` equation
+/// all the same. A box seen by a fixed arm (`SimParams::fixed_base`, 30 views over 140 deg): with the
+/// true hand-eye no warning; with the recorded one 1 deg / 5 mm off, a warning and the refined one
+/// within a third of that error.
+#[test]
+fn a_fixed_arm_s_hand_eye_is_checked_from_its_one_stop() {
+    let sim =
+        simulate(&SimParams { views: 30, fixed_base: true, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+    let mut exact = sim.clone();
+    exact.scan.ee_from_camera = sim.truth.ee_from_camera;
+    let out = fuse_with(&exact, &FuseConfig::default());
+    let he = out.report.hand_eye.as_ref().expect("hand-eye");
+    let ((mm, deg), sigmas) = refined_error(&exact, &out);
+    println!(
+        "fixed arm, true hand-eye: refined {mm:.2} mm {deg:.3} deg, {sigmas:.2} sigma, scale {:.2}",
+        he.residual_scale
+    );
+    assert!(he.refused.is_empty() && he.warning.is_empty(), "{} {}", he.refused, he.warning);
+    assert_eq!(he.stops_used.len(), 1);
+    let off = with_hand_eye_off(sim);
+    let out = fuse_with(&off, &FuseConfig::default());
+    let he = out.report.hand_eye.as_ref().expect("hand-eye");
+    let ((mm, deg), sigmas) = refined_error(&off, &out);
+    println!(
+        "fixed arm, 1 deg / 5 mm off: refined {mm:.2} mm {deg:.3} deg, {sigmas:.2} sigma, scale {:.2}",
+        he.residual_scale
+    );
+    assert!(he.warning.contains("recalibrate"), "{}", he.warning);
+    assert!(mm < 5.0 / 3.0 && deg < 1.0 / 3.0, "{mm:.2} mm {deg:.3} deg");
+}

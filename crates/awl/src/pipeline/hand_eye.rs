@@ -1,6 +1,9 @@
 //! The hand-eye refined from the registered scan (a fuse stage after registration): every base stop
 //! with two or more registered views gives `A X = X B` (registered camera motion, recorded flange
-//! motion), solved with the recorded `T_ee_camera` as a prior by [`crate::handeye::chain`].
+//! motion), solved with the recorded `T_ee_camera` as a prior by [`crate::handeye::chain`]. One stop
+//! is enough (a fixed arm's scan) when its turns span two axes. Views that disagree with the others
+//! are left out stop by stop (with one stop, view by view, down to a third of them); a residual scale
+//! above [`DECLINE_RESIDUAL_SCALE`] with nothing left to leave out declines, naming the registrations.
 //!
 //! It changes nothing of the model: the model frame stays the one the anchor view's recorded pose
 //! puts it in (`T_world_base * T_base_ee * T_ee_camera` with the recorded hand-eye), and so do the
@@ -143,6 +146,10 @@ pub struct HandEyeReport {
     /// predicted error.
     #[serde(default)]
     pub rejected_disagreement_mm: f64,
+    /// With one base stop (a fixed arm), the views left out because they disagreed with the
+    /// others' (see [`MAX_RESIDUAL_SCALE`]), in the order they were left out.
+    #[serde(default)]
+    pub views_rejected: Vec<usize>,
     /// The views used.
     pub views_used: Vec<usize>,
     /// The directions of motion the views' registrations left unobserved (`views[i].unobserved` of
@@ -247,6 +254,7 @@ fn report_of(
         stops_used: Vec::new(),
         stops_rejected: Vec::new(),
         rejected_disagreement_mm: 0.0,
+        views_rejected: Vec::new(),
         views_used: Vec::new(),
         unobserved_left_out: 0,
         prior_sigmas: 0.0,
@@ -292,12 +300,10 @@ fn refusal(views: &[(usize, ChainView)], config: &HandEyeConfig) -> (String, usi
     stops.sort_unstable();
     stops.dedup();
     let (rotating, axis_angle) = within_stop_diversity(&chain, config.min_turn_rad);
-    let refused = if stops.len() < 2 {
-        format!(
-            "fewer than two usable stops: {} base stop(s) hold two or more registered views (views of one stop \
-             share `base_stop` or an identical T_world_base)",
-            stops.len()
-        )
+    let refused = if stops.is_empty() {
+        "no usable stop: no base stop holds two or more registered views (views of one stop share `base_stop` or \
+         an identical T_world_base)"
+            .to_string()
     } else if rotating < 2 || axis_angle < config.min_axis_angle_rad {
         format!(
             "parallel rotation axes: {rotating} within-stop view pairs turn more than {:.1} deg and their axes span \
@@ -330,6 +336,10 @@ fn disagreement(views: &[(usize, ChainView)], stops: &[usize], ee_from_camera: &
 /// stop that disagrees most is left out: 2, where the scans with consistent registrations measure
 /// 0.76-1.24.
 pub const MAX_RESIDUAL_SCALE: f64 = 2.0;
+
+/// Above this residual scale with nothing left to leave out, the refinement declines and names the
+/// registrations as the cause (no "recalibrate" warning): 5, 2.5 times the limit.
+pub const DECLINE_RESIDUAL_SCALE: f64 = 5.0;
 
 /// Refines the scan's recorded hand-eye from the registered `poses` (`T_world_camera` per view,
 /// `None`: left out), each view's `unobserved` motions (twists of its pose in the world frame,
@@ -377,6 +387,7 @@ pub fn refine_hand_eye(
     // Gaussian prior meanwhile, so that the outliers stand out
     let (mut refused, mut rotating, mut axis_angle) = refusal(&views, config);
     let mut stops_rejected = Vec::new();
+    let mut views_rejected: Vec<usize> = Vec::new();
     let mut estimate = None;
     while refused.is_empty() {
         let e = solve(&views, &gaussian)?;
@@ -391,17 +402,46 @@ pub fn refine_hand_eye(
                 None => per_stop.push((v.stop, *chi2, 1)),
             }
         }
-        let worst = (per_stop.iter())
-            .max_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
-            .map_or(usize::MAX, |w| w.0);
-        let remaining: Vec<(usize, ChainView)> = views.iter().copied().filter(|(_, v)| v.stop != worst).collect();
+        let remaining: Vec<(usize, ChainView)> = if per_stop.len() == 1 {
+            // one stop (a fixed arm): the view that disagrees most goes, while a third of them are left
+            let worst =
+                (views.iter().zip(&e.view_chi2)).max_by(|a, b| a.1.total_cmp(b.1)).map_or(usize::MAX, |w| w.0.0);
+            let kept: Vec<(usize, ChainView)> = views.iter().copied().filter(|(i, _)| *i != worst).collect();
+            if 3 * kept.len() < all_views.len() {
+                Vec::new()
+            } else {
+                views_rejected.push(worst);
+                kept
+            }
+        } else {
+            let worst = (per_stop.iter())
+                .max_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
+                .map_or(usize::MAX, |w| w.0);
+            stops_rejected.push(worst);
+            views.iter().copied().filter(|(_, v)| v.stop != worst).collect()
+        };
         let next = refusal(&remaining, config);
-        if !next.0.is_empty() {
-            // no stop can go: the estimate stands, its covariance scaled by the residuals
+        if remaining.is_empty() || !next.0.is_empty() {
+            if per_stop.len() > 1 {
+                stops_rejected.pop();
+            } else if !remaining.is_empty() {
+                views_rejected.pop();
+            }
+            if e.residual_scale > DECLINE_RESIDUAL_SCALE {
+                // far beyond the noise: the registrations, not the hand-eye, disagree with the arm
+                refused = format!(
+                    "the views' registered motions disagree with the arm's {:.1} times beyond the noise model \
+                     (residual scale; limit {MAX_RESIDUAL_SCALE}, declined above {DECLINE_RESIDUAL_SCALE}) with \
+                     nothing left to leave out: registrations that slid (a symmetric or featureless part), not \
+                     the hand-eye, are the likely cause; the recorded hand-eye is used unchecked",
+                    e.residual_scale
+                );
+                break;
+            }
+            // nothing can go: the estimate stands, its covariance scaled by the residuals
             estimate = Some(e);
             break;
         }
-        stops_rejected.push(worst);
         (views, (refused, rotating, axis_angle)) = (remaining, next);
     }
     let mut stops_used: Vec<usize> = views.iter().map(|(_, v)| v.stop).collect();
@@ -413,6 +453,7 @@ pub fn refine_hand_eye(
         report.rejected_disagreement_mm = disagreement(&all_views, &stops_rejected, &e.ee_from_camera) * 1e3;
     }
     report.stops_rejected = stops_rejected;
+    report.views_rejected = views_rejected;
     report.views_used = views.iter().map(|(i, _)| *i).collect();
     report.unobserved_left_out = views.iter().map(|(i, _)| unobserved.get(*i).map_or(0, Vec::len)).sum();
     report.rotating_pairs = rotating;
@@ -523,10 +564,10 @@ mod tests {
             refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a hand-eye");
         assert_eq!(untagged.stops_used, vec![0, 2, 4, 6]);
         assert!((untagged.correction_mm - r.correction_mm).abs() < 1e-9);
-        // one stop: refused, named
+        // one stop of two views (a fixed arm's, too few): one turning pair, refused, named
         let (s, poses) = scan(1, spread, true);
         let one = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
-        assert!(one.refined.is_none() && one.refused.starts_with("fewer than two usable stops"), "{}", one.refused);
+        assert!(one.refined.is_none() && one.refused.starts_with("parallel rotation axes"), "{}", one.refused);
         // every stop turning about the same axis: refused, named
         let (s, poses) = scan(4, |_| Vector3::z(), true);
         let parallel = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");

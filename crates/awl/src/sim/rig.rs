@@ -90,8 +90,8 @@ fn base_pose(layout: &ScanLayout, rng: &mut ChaCha8Rng, az: f64, reach: f64) -> 
 /// around 360 degrees, a low (18-30 deg) and a high (40-52 deg) elevation at each base stop, the camera
 /// `0.75 + centre height/2` to `+0.35` m from the centre, aimed at it with a little jitter.
 ///
-/// With `fixed_base` (a fixed arm): one stop, the azimuths spread over the 200 degrees facing the
-/// base, the elevation rising from 15 to 60 degrees along them.
+/// With `fixed_base` (a fixed arm): one stop, the azimuths spread over the 140 degrees facing the
+/// base, the elevations over 15 to 55 degrees.
 pub(crate) fn plan_scan(
     layout: &ScanLayout,
     centre_height: f64,
@@ -137,26 +137,28 @@ pub(crate) fn plan_scan(
     views
 }
 
-/// A fixed arm's views (see [`plan_scan`]): the base 1.1 m from the workpiece's centre at a random
-/// azimuth, the cameras `0.55 + centre height/2` to `+0.25` m from the centre.
+/// A fixed arm's views (see [`plan_scan`]): the base 0.9 m from the workpiece's centre at a random
+/// azimuth, the cameras within 70 degrees of azimuth of it (within a UR10e's 1.3 m of the base), 15 to
+/// 55 degrees up, `0.75 + centre height/2` to `+0.35` m from the centre (as a mobile base's: nearer,
+/// a view sees the top and the floor only).
 fn plan_fixed(layout: &ScanLayout, centre_height: f64, n: usize, rng: &mut ChaCha8Rng) -> Vec<RigView> {
     let base_az = uniform(rng, 0.0, std::f64::consts::TAU);
     let c = layout.centre;
-    let at = c.xy().coords + Vector2::new(base_az.cos(), base_az.sin()) * 1.1;
+    let at = c.xy().coords + Vector2::new(base_az.cos(), base_az.sin()) * 0.9;
     let facing = (-base_az.sin()).atan2(-base_az.cos());
     let world_from_base = Isometry3::from_parts(
         Translation3::new(at.x, at.y, BASE_HEIGHT),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), facing),
     );
-    let d_lo = 0.55 + 0.5 * centre_height;
+    let d_lo = 0.75 + 0.5 * centre_height;
     let ee_from_camera = true_ee_from_camera();
     (0..n)
         .map(|k| {
             let f = if n > 1 { k as f64 / (n - 1) as f64 } else { 0.5 };
-            let az = base_az + (f - 0.5) * 200f64.to_radians() + uniform(rng, -3.0, 3.0).to_radians();
-            let el =
-                (15.0 + 45.0 * ((k * 7) % n.max(1)) as f64 / n.max(1) as f64 + uniform(rng, -3.0, 3.0)).to_radians();
-            let eye = camera_position(layout, az, el, uniform(rng, d_lo, d_lo + 0.25));
+            let az = base_az + (f - 0.5) * 140f64.to_radians() + uniform(rng, -3.0, 3.0).to_radians();
+            let rise = ((k * 7) % n.max(1)) as f64 / n.max(1) as f64;
+            let el = (15.0 + 40.0 * rise + uniform(rng, -3.0, 3.0)).to_radians();
+            let eye = camera_position(layout, az, el, uniform(rng, d_lo, d_lo + 0.35));
             let jitter = Vector3::new(normal(rng), normal(rng), normal(rng)) * 0.02;
             let roll = normal(rng) * 10f64.to_radians();
             let world_from_camera = look_at(&eye, &(c + jitter), roll);
