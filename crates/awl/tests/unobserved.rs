@@ -234,25 +234,23 @@ fn a_scan_whose_registration_split_leaves_the_split_stops_out_of_the_hand_eye() 
 fn a_fixed_arm_s_hand_eye_is_checked_from_its_one_stop() {
     let sim =
         simulate(&SimParams { views: 30, fixed_base: true, ..SimParams::scan(SceneKind::Box) }).expect("simulate");
+    // the hand-eye report of a fuse of `sim` and the refined hand-eye's error (mm, deg)
+    let refine = |sim: &Simulation, name: &str| {
+        let out = fuse_with(sim, &FuseConfig::default());
+        let ((mm, deg), sigmas) = refined_error(sim, &out);
+        let he = out.report.hand_eye.expect("hand-eye");
+        println!(
+            "fixed arm, {name}: refined {mm:.2} mm {deg:.3} deg, {sigmas:.2} sigma, scale {:.2}",
+            he.residual_scale
+        );
+        (he, mm, deg)
+    };
     let mut exact = sim.clone();
     exact.scan.ee_from_camera = sim.truth.ee_from_camera;
-    let out = fuse_with(&exact, &FuseConfig::default());
-    let he = out.report.hand_eye.as_ref().expect("hand-eye");
-    let ((mm, deg), sigmas) = refined_error(&exact, &out);
-    println!(
-        "fixed arm, true hand-eye: refined {mm:.2} mm {deg:.3} deg, {sigmas:.2} sigma, scale {:.2}",
-        he.residual_scale
-    );
+    let (he, _, _) = refine(&exact, "true hand-eye");
     assert!(he.refused.is_empty() && he.warning.is_empty(), "{} {}", he.refused, he.warning);
     assert_eq!(he.stops_used.len(), 1);
-    let off = with_hand_eye_off(sim);
-    let out = fuse_with(&off, &FuseConfig::default());
-    let he = out.report.hand_eye.as_ref().expect("hand-eye");
-    let ((mm, deg), sigmas) = refined_error(&off, &out);
-    println!(
-        "fixed arm, 1 deg / 5 mm off: refined {mm:.2} mm {deg:.3} deg, {sigmas:.2} sigma, scale {:.2}",
-        he.residual_scale
-    );
+    let (he, mm, deg) = refine(&with_hand_eye_off(sim), "1 deg / 5 mm off");
     assert!(he.warning.contains("recalibrate"), "{}", he.warning);
     assert!(mm < 5.0 / 3.0 && deg < 1.0 / 3.0, "{mm:.2} mm {deg:.3} deg");
 }

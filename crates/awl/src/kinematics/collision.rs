@@ -361,6 +361,7 @@ impl Obstacles {
     ) -> Option<Clearance> {
         let mut best: Option<Clearance> = None;
         let exclude_sq = params.exclude_radius_m * params.exclude_radius_m;
+        let excluded = |p: &Point3<f64>| target.is_some_and(|t| (p - t).norm_squared() <= exclude_sq);
         for c in capsules {
             if let Some(floor) = &self.floor {
                 let d = floor.height(&c.a).min(floor.height(&c.b)) - c.radius_m;
@@ -379,7 +380,7 @@ impl Obstacles {
                 let mid = (c.a + (c.b - c.a) * ((k as f64 + 0.5) / pieces as f64)).cast::<f32>();
                 let Some(nearest) = self.index.nearest_within(&mid, search as f32) else { continue };
                 let p = self.points[nearest.index as usize].cast::<f64>();
-                let radius = if target.is_some_and(|t| (p - t).norm_squared() <= exclude_sq) {
+                let radius = if excluded(&p) {
                     search
                 } else {
                     // (1e-4 m above: the f32 distance's rounding)
@@ -387,7 +388,7 @@ impl Obstacles {
                 };
                 for n in self.index.within(&mid, radius as f32) {
                     let p = self.points[n.index as usize].cast::<f64>();
-                    if target.is_some_and(|t| (p - t).norm_squared() <= exclude_sq) {
+                    if excluded(&p) {
                         continue;
                     }
                     smallest = smallest.min(shape.distance_to_local_point(PVector::new(p.x, p.y, p.z), true));

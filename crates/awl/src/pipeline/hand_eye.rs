@@ -402,31 +402,19 @@ pub fn refine_hand_eye(
                 None => per_stop.push((v.stop, *chi2, 1)),
             }
         }
-        let remaining: Vec<(usize, ChainView)> = if per_stop.len() == 1 {
-            // one stop (a fixed arm): the view that disagrees most goes, while a third of them are left
-            let worst =
-                (views.iter().zip(&e.view_chi2)).max_by(|a, b| a.1.total_cmp(b.1)).map_or(usize::MAX, |w| w.0.0);
-            let kept: Vec<(usize, ChainView)> = views.iter().copied().filter(|(i, _)| *i != worst).collect();
-            if 3 * kept.len() < all_views.len() {
-                Vec::new()
-            } else {
-                views_rejected.push(worst);
-                kept
-            }
+        // with one stop (a fixed arm) the view that disagrees most goes, while a third of them are left
+        let one_stop = per_stop.len() == 1;
+        let worst = if one_stop {
+            (views.iter().zip(&e.view_chi2)).max_by(|a, b| a.1.total_cmp(b.1)).map_or(usize::MAX, |w| w.0.0)
         } else {
-            let worst = (per_stop.iter())
+            (per_stop.iter())
                 .max_by(|a, b| (a.1 / a.2 as f64).total_cmp(&(b.1 / b.2 as f64)))
-                .map_or(usize::MAX, |w| w.0);
-            stops_rejected.push(worst);
-            views.iter().copied().filter(|(_, v)| v.stop != worst).collect()
+                .map_or(usize::MAX, |w| w.0)
         };
+        let remaining: Vec<(usize, ChainView)> =
+            views.iter().copied().filter(|(i, v)| if one_stop { *i != worst } else { v.stop != worst }).collect();
         let next = refusal(&remaining, config);
-        if remaining.is_empty() || !next.0.is_empty() {
-            if per_stop.len() > 1 {
-                stops_rejected.pop();
-            } else if !remaining.is_empty() {
-                views_rejected.pop();
-            }
+        if !next.0.is_empty() || (one_stop && 3 * remaining.len() < all_views.len()) {
             if e.residual_scale > DECLINE_RESIDUAL_SCALE {
                 // far beyond the noise: the registrations, not the hand-eye, disagree with the arm
                 refused = format!(
@@ -441,6 +429,11 @@ pub fn refine_hand_eye(
             // nothing can go: the estimate stands, its covariance scaled by the residuals
             estimate = Some(e);
             break;
+        }
+        if one_stop {
+            views_rejected.push(worst)
+        } else {
+            stops_rejected.push(worst)
         }
         (views, (refused, rotating, axis_angle)) = (remaining, next);
     }
@@ -600,6 +593,33 @@ mod tests {
             clean.correction_mm,
             slid.correction_mm
         );
+        // one stop (a fixed arm's): the same ten views under one `base_stop`; the slid view alone goes
+        let (mut s, mut poses) = scan(5, spread, true);
+        for v in &mut s.views {
+            v.extra.insert("base_stop".into(), json!(0));
+        }
+        poses[3] = poses[3].map(|p| Translation3::new(0.02, 0.0, 0.0) * p);
+        let fixed = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
+        assert!(fixed.refused.is_empty(), "{}", fixed.refused);
+        assert_eq!((fixed.stops_used.clone(), fixed.views_rejected.clone()), (vec![0], vec![3]));
+        assert!(
+            fixed.stops_rejected.is_empty() && fixed.residual_scale <= MAX_RESIDUAL_SCALE,
+            "{}",
+            fixed.residual_scale
+        );
+        let refined = crate::transform::isometry_from_rows(fixed.refined.as_ref().expect("refined")).expect("rigid");
+        let after = crate::transform::pose_difference(&refined, &truth);
+        assert!(after.0 < 0.6 * before.0 && after.1 < 0.4 * before.1, "{before:?} -> {after:?}");
+        // both stops of two slid: leaving either out leaves one turn, so nothing can go, and residuals
+        // this far beyond the noise decline (naming the registrations), with no "recalibrate"
+        let (s, mut poses) = scan(2, spread, true);
+        for i in [1, 3] {
+            poses[i] = poses[i].map(|p| Translation3::new(0.02, 0.0, 0.0) * p);
+        }
+        let both = refine_hand_eye(&s, &poses, &[], &HandEyeConfig::default()).expect("refine").expect("a report");
+        println!("both stops slid: {}", both.refused);
+        assert!(both.refused.starts_with("the views' registered motions disagree with the arm's"), "{}", both.refused);
+        assert!(both.refined.is_none() && both.warning.is_empty() && both.stops_rejected.is_empty());
         // refused before the fuse registers anything
         let bad_dof = HandEyeConfig { prior_dof: Some(-1.0), ..HandEyeConfig::default() };
         let config = crate::pipeline::FuseConfig { hand_eye: Some(bad_dof), ..crate::pipeline::FuseConfig::default() };

@@ -113,10 +113,7 @@ pub(crate) fn plan_scan(
             let first = (0..n).find(|&j| j * stops / n == stop).unwrap_or(k);
             let az = phase + std::f64::consts::TAU * k as f64 / n as f64 + uniform(&mut rng, -4.0, 4.0).to_radians();
             let el = if (k - first) % 2 == 0 { uniform(&mut rng, 18.0, 30.0) } else { uniform(&mut rng, 40.0, 52.0) };
-            let eye = camera_position(layout, az, el.to_radians(), uniform(&mut rng, d_lo, d_lo + 0.35));
-            let jitter = Vector3::new(normal(&mut rng), normal(&mut rng), normal(&mut rng)) * 0.02;
-            let roll = normal(&mut rng) * 2f64.to_radians();
-            (stop, look_at(&eye, &(layout.centre + jitter), roll))
+            (stop, aimed_camera(layout, &mut rng, az, el.to_radians(), d_lo, 2.0))
         })
         .collect();
     let ee_from_camera = true_ee_from_camera();
@@ -135,6 +132,23 @@ pub(crate) fn plan_scan(
         }
     }
     views
+}
+
+/// `T_world_camera` of a view at azimuth `az` and elevation `el` (radians), `d_lo` to `d_lo + 0.35` m
+/// from the centre, aimed at the centre with 2 cm of jitter and a roll of `roll_sigma_deg` (the draws:
+/// distance, jitter, roll).
+fn aimed_camera(
+    layout: &ScanLayout,
+    rng: &mut ChaCha8Rng,
+    az: f64,
+    el: f64,
+    d_lo: f64,
+    roll_sigma_deg: f64,
+) -> Isometry3<f64> {
+    let eye = camera_position(layout, az, el, uniform(rng, d_lo, d_lo + 0.35));
+    let jitter = Vector3::new(normal(rng), normal(rng), normal(rng)) * 0.02;
+    let roll = normal(rng) * roll_sigma_deg.to_radians();
+    look_at(&eye, &(layout.centre + jitter), roll)
 }
 
 /// A fixed arm's views (see [`plan_scan`]): the base 0.9 m from the workpiece's centre at a random
@@ -158,10 +172,7 @@ fn plan_fixed(layout: &ScanLayout, centre_height: f64, n: usize, rng: &mut ChaCh
             let az = base_az + (f - 0.5) * 140f64.to_radians() + uniform(rng, -3.0, 3.0).to_radians();
             let rise = ((k * 7) % n.max(1)) as f64 / n.max(1) as f64;
             let el = (15.0 + 40.0 * rise + uniform(rng, -3.0, 3.0)).to_radians();
-            let eye = camera_position(layout, az, el, uniform(rng, d_lo, d_lo + 0.35));
-            let jitter = Vector3::new(normal(rng), normal(rng), normal(rng)) * 0.02;
-            let roll = normal(rng) * 10f64.to_radians();
-            let world_from_camera = look_at(&eye, &(c + jitter), roll);
+            let world_from_camera = aimed_camera(layout, rng, az, el, d_lo, 10.0);
             let base_from_ee = world_from_base.inverse() * world_from_camera * ee_from_camera.inverse();
             RigView { stop: 0, world_from_base, base_from_ee, world_from_camera }
         })
