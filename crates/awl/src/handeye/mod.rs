@@ -87,7 +87,7 @@
 //! degrees (Park-Martin and Daniilidis do not).
 
 pub mod capture;
-mod capture_bound;
+pub(crate) mod capture_bound;
 pub mod chain;
 mod daniilidis;
 mod diagnosis;

@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Vector6};
 
+use super::advice::{ScanAdvice, advise};
 use super::config::FuseConfig;
 use super::feed::Feed;
 use super::hand_eye::{HandEyeReport, refine_hand_eye};
@@ -61,7 +62,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
     let mut log = Log { stages: Vec::new(), warnings: scan.warnings.clone() };
     let preparer = Preparer::new(scan, config);
     let (registered, feed) = prepare_and_register(&preparer, config, &mut log, progress)?;
-    let hand_eye = hand_eye(scan, &registered, config, &mut log)?;
+    let (hand_eye, advice) = hand_eye(scan, &registered, config, &mut log)?;
     progress("merge", 5, STAGES);
     let merged = merge(feed, &registered.poses, config, &mut log)?;
     progress("isolate object", 6, STAGES);
@@ -95,6 +96,7 @@ pub fn fuse(scan: &Scan, config: &FuseConfig, progress: Progress<'_>) -> Result<
         floor,
         clusters,
         hand_eye,
+        advice,
         model_points: model.len(),
         warnings: log.warnings,
         seconds: start.elapsed().as_secs_f64(),
@@ -166,16 +168,26 @@ fn merge(
     Ok(merged)
 }
 
-/// Stage 4: the hand-eye refined from the registered base stops (`None`: off), and why not.
-fn hand_eye(scan: &Scan, registered: &Registered, config: &FuseConfig, log: &mut Log) -> Result<Option<HandEyeReport>> {
-    let Some(c) = &config.hand_eye else { return Ok(None) };
-    let report = log.timed("hand-eye", 0, |_| {
+/// Stage 4: the hand-eye refined from the registered base stops (`None`: off), and why not; the
+/// scan-time advice on where more views would gain.
+fn hand_eye(
+    scan: &Scan,
+    registered: &Registered,
+    config: &FuseConfig,
+    log: &mut Log,
+) -> Result<(Option<HandEyeReport>, Option<ScanAdvice>)> {
+    let Some(c) = &config.hand_eye else { return Ok((None, None)) };
+    let (report, advice) = log.timed("hand-eye", 0, |_| {
         let unobserved: Vec<Vec<Vector6<f64>>> = (registered.reports.iter())
             .map(|r| r.unobserved.iter().map(|u| Vector6::from(u.twist)).collect())
             .collect();
         let report = refine_hand_eye(scan, &registered.poses, &unobserved, c)?;
+        let advice = match &report {
+            Some(r) => advise(scan, r, &registered.poses, &unobserved, c)?,
+            None => None,
+        };
         let views = report.as_ref().map_or(0, |r| r.views_used.len());
-        Ok((report, views))
+        Ok(((report, advice), views))
     })?;
     if let Some(r) = report.as_ref().filter(|r| !r.refused.is_empty()) {
         log.warnings.push(format!("hand-eye not refined from the scan: {}", r.refused));
@@ -191,7 +203,8 @@ fn hand_eye(scan: &Scan, registered: &Registered, config: &FuseConfig, log: &mut
     if let Some(r) = report.as_ref().filter(|r| !r.warning.is_empty()) {
         log.warnings.push(r.warning.clone());
     }
-    Ok(report)
+    log.warnings.extend(advice.as_ref().and_then(ScanAdvice::summary));
+    Ok((report, advice))
 }
 
 #[cfg(test)]

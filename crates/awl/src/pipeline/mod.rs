@@ -16,11 +16,12 @@
 //!    overlapping pair in one system, the anchor fixed; it undoes the sequential pass's drift
 //!    (held views only: the `fast` preset has none);
 //! 4. the hand-eye refined from the registered base stops (`hand_eye`): into the report, the model
-//!    untouched;
+//!    untouched; with it the advice on where more views would gain (`advice`);
 //! 5. merge: the views' measured points at their poses, down-sampled on one voxel grid;
 //! 6. isolate (`isolate`): the floor plane removed, the object's DBSCAN cluster kept;
 //! 7. smooth (MLS).
 
+pub mod advice;
 mod clean;
 pub mod config;
 mod feed;

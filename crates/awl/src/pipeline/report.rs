@@ -109,6 +109,9 @@ pub struct FuseReport {
     /// the stage is off).
     #[serde(default)]
     pub hand_eye: Option<super::hand_eye::HandEyeReport>,
+    /// Where more views would gain (see `pipeline::advice`); absent without a hand-eye report.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub advice: Option<super::advice::ScanAdvice>,
     /// Points in the final model.
     pub model_points: usize,
     /// Non-fatal events, in order (views skipped or rejected, stages that found nothing).

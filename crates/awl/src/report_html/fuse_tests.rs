@@ -54,6 +54,7 @@ fn report() -> FuseReport {
         floor: None,
         clusters: None,
         hand_eye: None,
+        advice: None,
         model_points: 400,
         warnings: vec!["view 2 rejected".into()],
         seconds: 1.5,
