@@ -357,6 +357,7 @@ fn shots_are_in_the_robot_frame_and_see_the_tag() {
         (SceneKind::Box, ShotPose::Tilt30),
         (SceneKind::Shell, ShotPose::Flat),
         (SceneKind::Cylinder, ShotPose::Tilt30),
+        (SceneKind::Sphere, ShotPose::Flat),
     ] {
         let sim = simulate(&SimParams::shot(scene, pose)).expect("shot");
         assert_eq!(sim.views.len(), 2);

@@ -19,6 +19,8 @@ pub enum SceneArg {
     Shell,
     /// Cylinder, radius 15 cm, height 70 cm.
     Cylinder,
+    /// Sphere, radius 20 cm, resting on the floor.
+    Sphere,
 }
 
 /// Noise level of depth, color and poses.
@@ -110,6 +112,7 @@ fn params(args: &SimulateArgs) -> SimParams {
         SceneArg::Box => SceneKind::Box,
         SceneArg::Shell => SceneKind::Shell,
         SceneArg::Cylinder => SceneKind::Cylinder,
+        SceneArg::Sphere => SceneKind::Sphere,
     };
     let noise = noise(args.noise);
     let shot = args.shot.map(|s| match s {

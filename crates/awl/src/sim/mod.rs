@@ -58,6 +58,9 @@ pub enum SceneKind {
     Shell,
     /// A cylinder of radius 15 cm and height 70 cm, tag (8 cm) on its side.
     Cylinder,
+    /// A sphere of radius 20 cm resting on the floor, tag (8 cm) on its -y side 15 degrees above the
+    /// equator. Alone with the floor it leaves the spin about its vertical axis unconstrained.
+    Sphere,
 }
 
 impl SceneKind {
@@ -67,6 +70,7 @@ impl SceneKind {
             Self::Box => "box",
             Self::Shell => "shell",
             Self::Cylinder => "cylinder",
+            Self::Sphere => "sphere",
         }
     }
 }

@@ -1,5 +1,5 @@
 //! Mesh primitives of the simulated scenes, counter-clockwise seen from outside: cuboids, quads,
-//! cylinders and the free-form dome shell with its groove.
+//! cylinders, spheres and the free-form dome shell with its groove.
 
 use nalgebra::{Point3, Vector3};
 
@@ -66,6 +66,36 @@ pub(crate) fn cylinder(cx: f64, cy: f64, radius: f64, height: f64, segments: u32
         for j in 0..segments {
             let (a, b) = (centre + 1 + j, centre + 1 + (j + 1) % segments);
             mesh.triangles.push(if up { [centre, a, b] } else { [centre, b, a] });
+        }
+    }
+    mesh
+}
+
+/// A sphere of `radius` around `centre`: `rings` latitude rings between the poles (which lie on the
+/// vertical through the centre) and `segments` longitudes, vertices shared (smooth normals).
+pub(crate) fn sphere(centre: Point3<f64>, radius: f64, rings: u32, segments: u32) -> TriMesh {
+    let mut mesh = TriMesh::default();
+    let pi = std::f64::consts::PI;
+    mesh.vertices.push(centre - Vector3::z() * radius);
+    for i in 1..rings {
+        let polar = pi * f64::from(i) / f64::from(rings);
+        let (z, rho) = (-polar.cos() * radius, polar.sin() * radius);
+        mesh.vertices.extend((0..segments).map(|j| {
+            let phi = std::f64::consts::TAU * f64::from(j) / f64::from(segments);
+            centre + Vector3::new(rho * phi.cos(), rho * phi.sin(), z)
+        }));
+    }
+    let top = mesh.vertices.len() as u32;
+    mesh.vertices.push(centre + Vector3::z() * radius);
+    let v = |i: u32, j: u32| 1 + (i - 1) * segments + (j % segments);
+    for j in 0..segments {
+        mesh.triangles.push([0, v(1, j + 1), v(1, j)]);
+        mesh.triangles.push([top, v(rings - 1, j), v(rings - 1, j + 1)]);
+    }
+    for i in 1..rings - 1 {
+        for j in 0..segments {
+            mesh.triangles.push([v(i, j), v(i, j + 1), v(i + 1, j + 1)]);
+            mesh.triangles.push([v(i, j), v(i + 1, j + 1), v(i + 1, j)]);
         }
     }
     mesh
@@ -173,6 +203,10 @@ mod tests {
         let dome = Dome { a: 0.25, b: 0.2, h: 0.35, groove_x: -0.06, groove_depth: 0.0, groove_sigma: 0.017 };
         let v = signed_volume(&dome.mesh(120, 240));
         assert!(v > 0.0 && v < std::f64::consts::PI * 0.25 * 0.2 * 0.35, "{v}");
+        let ball = sphere(Point3::new(0.2, 0.2, 0.2), 0.2, 128, 256);
+        let expected = 4.0 / 3.0 * std::f64::consts::PI * 0.2f64.powi(3);
+        assert!((signed_volume(&ball) / expected - 1.0).abs() < 1e-3, "{}", signed_volume(&ball));
+        assert!(ball.vertices.iter().all(|p| ((p - Point3::new(0.2, 0.2, 0.2)).norm() - 0.2).abs() < 1e-12));
     }
 
     #[test]

@@ -1,11 +1,11 @@
-//! The three simulated workpieces in their object frame (a corner of the footprint on the floor,
+//! The four simulated workpieces in their object frame (a corner of the footprint on the floor,
 //! x/y along its edges, z up): CAD mesh, tag placement and piercing targets.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use crate::mesh::TriMesh;
 use crate::sim::SceneKind;
-use crate::sim::shapes::{Dome, cuboid, cylinder};
+use crate::sim::shapes::{Dome, cuboid, cylinder, sphere};
 
 /// A piercing target on the workpiece, object frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -52,6 +52,7 @@ pub(crate) fn workpiece(kind: SceneKind) -> Workpiece {
         SceneKind::Box => box_workpiece(),
         SceneKind::Shell => shell_workpiece(),
         SceneKind::Cylinder => cylinder_workpiece(),
+        SceneKind::Sphere => sphere_workpiece(),
     }
 }
 
@@ -59,9 +60,13 @@ pub(crate) fn workpiece(kind: SceneKind) -> Workpiece {
 const BOX: (f64, f64, f64) = (0.485, 0.48, 0.30);
 /// The cylinder's radius and height, metres.
 const CYLINDER: (f64, f64) = (0.15, 0.70);
+/// The sphere's radius, metres (it rests on the floor: its centre is one radius up).
+const SPHERE_RADIUS: f64 = 0.20;
+/// Elevation of the sphere's tag centre above its equator, degrees.
+const SPHERE_TAG_ELEVATION_DEG: f64 = 15.0;
 
 /// The point of `kind`'s true surface nearest `p` and the outward normal there (object frame):
-/// exact for the box's faces and the cylinder's side and top; on the dome, the top surface's
+/// exact for the box's faces, the cylinder's side and top and the sphere; on the dome, the top surface's
 /// nearest point by Gauss-Newton on its height field (good away from the rim).
 pub(crate) fn nearest_surface(kind: SceneKind, p: &Point3<f64>) -> (Point3<f64>, Vector3<f64>) {
     match kind {
@@ -102,6 +107,12 @@ pub(crate) fn nearest_surface(kind: SceneKind, p: &Point3<f64>) -> (Point3<f64>,
             let side = Point3::new(r + radial.x * r, r + radial.y * r, p.z.clamp(0.0, h));
             let top = Point3::new(p.x, p.y, h);
             if (side - p).norm() <= (top - p).norm() { (side, radial) } else { (top, Vector3::z()) }
+        }
+        SceneKind::Sphere => {
+            let r = SPHERE_RADIUS;
+            let centre = Point3::new(r, r, r);
+            let radial = (p - centre).try_normalize(1e-12).unwrap_or_else(Vector3::z);
+            (centre + radial * r, radial)
         }
     }
 }
@@ -155,6 +166,26 @@ fn cylinder_workpiece() -> Workpiece {
     }
 }
 
+/// A sphere of radius 20 cm resting on the floor (touching it at one point under its centre),
+/// tag (8 cm) on its -y side 15 degrees above the equator, facing out along the sphere's normal there.
+fn sphere_workpiece() -> Workpiece {
+    let r = SPHERE_RADIUS;
+    let centre = Point3::new(r, r, r);
+    let el = SPHERE_TAG_ELEVATION_DEG.to_radians();
+    let tag_normal = Vector3::new(0.0, -el.cos(), el.sin());
+    let upper = Vector3::new(1.0, 0.0, 1.0).normalize();
+    Workpiece {
+        cad: sphere(centre, r, 128, 256),
+        centre,
+        footprint: [0.0, 0.0, 2.0 * r, 2.0 * r],
+        radius: r,
+        object_from_tag: tag_frame(centre + tag_normal * r, tag_normal, Vector3::z()),
+        tag_size: 0.08,
+        // 45 degrees up on the +x side (turned 90 degrees about the vertical from the tag)
+        targets: vec![Target { name: "upper".into(), p: centre + upper * r, n: upper }],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,7 +193,7 @@ mod tests {
     #[test]
     fn nearest_surface_points_lie_on_the_surface_along_their_normal() {
         // a point 3 mm off each target along its normal and 1 mm aside comes back to the surface
-        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder] {
+        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder, SceneKind::Sphere] {
             let wp = workpiece(kind);
             for t in &wp.targets {
                 let aside = t.n.cross(&Vector3::new(0.3, 0.5, 0.8)).normalize() * 0.001;
@@ -181,7 +212,7 @@ mod tests {
 
     #[test]
     fn tag_frames_are_right_handed_with_y_up() {
-        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder] {
+        for kind in [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder, SceneKind::Sphere] {
             let wp = workpiece(kind);
             let r = wp.object_from_tag.rotation;
             let (x, y, z) = (r * Vector3::x(), r * Vector3::y(), r * Vector3::z());
