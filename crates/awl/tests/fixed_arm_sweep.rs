@@ -16,12 +16,13 @@
 //! `AWL_SWEEP_VERBOSE=1` (each view's status and unobserved directions, for runs that warn or refuse).
 #![cfg(feature = "sim")]
 
+mod common;
+
 use std::time::Instant;
 
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::sim::{SceneKind, SimParams, Simulation, simulate};
 use awl::transform::{isometry_from_rows, pose_difference};
-use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
 
 /// A hand-eye case: its name, the rotation (deg) and translation (mm) the recorded hand-eye is off by.
 #[derive(Clone, Copy)]
@@ -37,16 +38,6 @@ const CASES: [Case; 3] = [
     Case { name: "off2", deg: 2.3, mm: 27.0 },
 ];
 
-/// The true hand-eye moved by `deg` about a fixed axis and `mm` along a fixed direction (those of
-/// `unobserved.rs`' 1 deg / 5 mm case).
-fn hand_eye_off(truth: &Isometry3<f64>, deg: f64, mm: f64) -> Isometry3<f64> {
-    let off = Isometry3::from_parts(
-        Translation3::from(Vector3::new(-0.3, 0.8, 0.52).normalize() * mm * 1e-3),
-        UnitQuaternion::from_axis_angle(&Unit::new_normalize(Vector3::new(0.6, -0.5, 0.62)), deg.to_radians()),
-    );
-    truth * off
-}
-
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
@@ -56,13 +47,8 @@ fn env_list(name: &str, default: &str) -> Vec<String> {
 }
 
 fn scene(name: &str) -> SceneKind {
-    match name {
-        "box" => SceneKind::Box,
-        "shell" => SceneKind::Shell,
-        "cylinder" => SceneKind::Cylinder,
-        "sphere" => SceneKind::Sphere,
-        other => panic!("unknown shape {other}"),
-    }
+    let kinds = [SceneKind::Box, SceneKind::Shell, SceneKind::Cylinder, SceneKind::Sphere];
+    kinds.into_iter().find(|k| k.name() == name).unwrap_or_else(|| panic!("unknown shape {name}"))
 }
 
 /// What one fuse gave.
@@ -190,7 +176,7 @@ fn fixed_arm_hand_eye_sweep() {
                     continue;
                 }
                 let mut this = sim.clone();
-                this.scan.ee_from_camera = Some(hand_eye_off(&truth, case.deg, case.mm));
+                this.scan.ee_from_camera = Some(common::hand_eye_off(&truth, case.deg, case.mm));
                 let started = Instant::now();
                 let out = fuse(&this.in_memory_scan(), &FuseConfig::default(), &|_, _, _| {}).expect("fuse");
                 let seconds = started.elapsed().as_secs_f64();

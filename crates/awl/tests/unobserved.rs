@@ -5,12 +5,14 @@
 //! Numbers measured at the commit that added them (seed 1): see each assertion.
 #![cfg(feature = "sim")]
 
+mod common;
+
 use awl::io::scan::read_scan;
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
 use awl::registration::MotionKind;
 use awl::sim::{SceneKind, SimParams, Simulation, simulate, write_simulation};
 use awl::transform::pose_difference;
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3};
 
 fn fuse_with(sim: &Simulation, config: &FuseConfig) -> FuseOutput {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -26,15 +28,7 @@ fn bare_cylinder() -> Simulation {
 
 /// `sim` with its recorded hand-eye replaced by the true one moved 1 deg and 5 mm.
 fn with_hand_eye_off(mut sim: Simulation) -> Simulation {
-    let truth = sim.truth.ee_from_camera.expect("true hand-eye");
-    let off = Isometry3::from_parts(
-        Translation3::from(Vector3::new(-0.3, 0.8, 0.52).normalize() * 0.005),
-        UnitQuaternion::from_axis_angle(
-            &nalgebra::Unit::new_normalize(Vector3::new(0.6, -0.5, 0.62)),
-            1f64.to_radians(),
-        ),
-    );
-    sim.scan.ee_from_camera = Some(truth * off);
+    sim.scan.ee_from_camera = Some(common::hand_eye_off(&sim.truth.ee_from_camera.expect("true hand-eye"), 1.0, 5.0));
     sim
 }
 

@@ -116,7 +116,7 @@ fn point_covariance(x: &Matrix6<f64>, p: &Vector3<f64>) -> Matrix3<f64> {
 pub fn advise(
     scan: &Scan,
     report: &HandEyeReport,
-    poses: &[Option<nalgebra::Isometry3<f64>>],
+    poses: &[Option<Isometry3<f64>>],
     unobserved: &[Vec<Vector6<f64>>],
     config: &HandEyeConfig,
 ) -> Result<Option<ScanAdvice>> {

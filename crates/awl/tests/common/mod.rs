@@ -19,6 +19,17 @@ pub fn shared_data() -> PathBuf {
     dir
 }
 
+/// `truth` (a hand-eye `T_ee_camera`) moved by `deg` about one fixed axis and `mm` along one fixed
+/// direction, neither along a camera axis: the wrong recorded hand-eye of the hand-eye tests.
+pub fn hand_eye_off(truth: &nalgebra::Isometry3<f64>, deg: f64, mm: f64) -> nalgebra::Isometry3<f64> {
+    use nalgebra::{Isometry3, Translation3, Unit, UnitQuaternion, Vector3};
+    let off = Isometry3::from_parts(
+        Translation3::from(Vector3::new(-0.3, 0.8, 0.52).normalize() * (mm / 1000.0)),
+        UnitQuaternion::from_axis_angle(&Unit::new_normalize(Vector3::new(0.6, -0.5, 0.62)), deg.to_radians()),
+    );
+    truth * off
+}
+
 /// `image` with every channel scaled by `gain` (a dim scene).
 pub fn dimmed(image: &ColorImage, gain: f32) -> ColorImage {
     let data = image.data.iter().map(|p| p.map(|c| (f32::from(c) * gain).round() as u8)).collect();
