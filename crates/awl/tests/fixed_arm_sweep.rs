@@ -13,7 +13,13 @@
 //! Knobs (environment): `AWL_SWEEP_SEEDS` (seeds 1..=N, default 10), `AWL_SWEEP_FIRST_SEED` (default
 //! 1), `AWL_SWEEP_SHAPES` (comma-separated, default `box,cylinder,sphere`), `AWL_SWEEP_CASES`
 //! (comma-separated of `true,off1,off2`, default all), `AWL_SWEEP_VIEWS` (default 30),
-//! `AWL_SWEEP_VERBOSE=1` (each view's status and unobserved directions, for runs that warn or refuse).
+//! `AWL_SWEEP_NOISE` (`low`, `realistic` or `harsh`, default realistic), `AWL_SWEEP_BARE=1` (the shape alone
+//! on the floor, no clutter), `AWL_SWEEP_VERBOSE=1` (each view's status and unobserved directions, for runs
+//! that warn or refuse).
+//!
+//! Each line also gives how far the registered views slid: each view's registered pose against the
+//! truth, both taken relative to the anchor view (the world the fuse keeps), the largest rotation
+//! (deg) and translation (mm) over the registered views, and how many slid by more than 1 deg.
 #![cfg(feature = "sim")]
 
 mod common;
@@ -21,7 +27,7 @@ mod common;
 use std::time::Instant;
 
 use awl::pipeline::{FuseConfig, FuseOutput, ViewStatus, fuse};
-use awl::sim::{SceneKind, SimParams, Simulation, simulate};
+use awl::sim::{NoiseLevel, SceneKind, SimParams, Simulation, simulate};
 use awl::transform::{isometry_from_rows, pose_difference};
 
 /// A hand-eye case: its name, the rotation (deg) and translation (mm) the recorded hand-eye is off by.
@@ -68,6 +74,34 @@ impl Run {
     }
 }
 
+/// Each registered view's slide: its registered pose against the truth, relative to the anchor's
+/// (rotation deg, translation mm), `None` for views not registered.
+fn slides(sim: &Simulation, out: &FuseOutput) -> Vec<Option<(f64, f64)>> {
+    let views = &out.report.views;
+    let registered = |i: usize| {
+        let v = &views[i];
+        matches!(v.status, ViewStatus::Accepted | ViewStatus::Anchor)
+            .then(|| v.pose.as_ref().and_then(|rows| isometry_from_rows(rows).ok()))
+            .flatten()
+    };
+    let Some(anchor) = (0..views.len()).find(|&i| views[i].status == ViewStatus::Anchor) else {
+        return vec![None; views.len()];
+    };
+    let (Some(anchor_pose), Some(anchor_truth)) = (registered(anchor), sim.truth.views.get(anchor)) else {
+        return vec![None; views.len()];
+    };
+    // the fused world -> the true world, as the anchor puts it
+    let truth_from_fused = anchor_truth.world_from_camera * anchor_pose.inverse();
+    (0..views.len())
+        .map(|i| {
+            let pose = registered(i)?;
+            let truth = sim.truth.views.get(i)?.world_from_camera;
+            let (t, r) = pose_difference(&(truth_from_fused * pose), &truth);
+            Some((r.to_degrees(), t * 1e3))
+        })
+        .collect()
+}
+
 fn short(s: &str, n: usize) -> String {
     let s = s.replace('\n', " ");
     if s.chars().count() <= n { s } else { format!("{}...", s.chars().take(n).collect::<String>()) }
@@ -94,9 +128,14 @@ fn describe(
     let warning = he.map_or("", |h| h.warning.as_str());
     let refused = he.map_or("no hand-eye report", |h| h.refused.as_str());
     let warned = warning.contains("recalibrate");
+    let slid = slides(sim, out);
+    let max_deg = slid.iter().flatten().map(|s| s.0).fold(0.0, f64::max);
+    let max_mm = slid.iter().flatten().map(|s| s.1).fold(0.0, f64::max);
+    let over_1deg = slid.iter().flatten().filter(|s| s.0 > 1.0).count();
     let run = Run { shape: shape.into(), seed, case, warned, refused: !refused.is_empty(), error };
     println!(
         "{shape:8} seed {seed:2} {:4}: views {}/{} registered, hand-eye used {} rejected {:?}, unobserved: {} views ({} left out) | \
+         slid max {max_deg:.2} deg {max_mm:.1} mm, {over_1deg} over 1 deg | \
          warn {} (other warning: {}) | refused {:?} | scale {:.2} prior {:.1} sigma | refined {} | {seconds:.0} s",
         case.name,
         registered,
@@ -112,7 +151,7 @@ fn describe(
         he.map_or(f64::NAN, |h| h.prior_sigmas),
         error.map_or("-".into(), |(mm, deg)| format!("{mm:.2} mm {deg:.3} deg")),
     );
-    if verbose && (warned || run.refused || case.deg == 0.0 && !warning.is_empty()) {
+    if verbose && (warned || run.refused || over_1deg > 0 || case.deg == 0.0 && !warning.is_empty()) {
         for (i, v) in views.iter().enumerate() {
             let u: Vec<String> = v
                 .unobserved
@@ -125,11 +164,14 @@ fn describe(
                 })
                 .collect();
             println!(
-                "    view {i:2}: {:?} corr {:.1} mm {:.2} deg fit {:.2} {} {}",
+                "    view {i:2}: {:?} slid {} corr {:.1} mm {:.2} deg fit {:.2} cond {:.1e} observed {:.1e} {} {}",
                 v.status,
+                slid[i].map_or("-".into(), |(deg, mm)| format!("{deg:.2} deg {mm:.1} mm")),
                 v.correction_mm,
                 v.correction_deg,
                 v.fitness,
+                v.conditioning,
+                v.observed_conditioning,
                 u.join("; "),
                 short(&v.reason, 60)
             );
@@ -159,14 +201,21 @@ fn fixed_arm_hand_eye_sweep() {
         .collect();
     let views = env_usize("AWL_SWEEP_VIEWS", 30);
     let verbose = std::env::var("AWL_SWEEP_VERBOSE").is_ok_and(|v| v == "1");
+    let bare = std::env::var("AWL_SWEEP_BARE").is_ok_and(|v| v == "1");
+    let noise = match std::env::var("AWL_SWEEP_NOISE").as_deref().unwrap_or("realistic") {
+        "low" => NoiseLevel::Low,
+        "realistic" => NoiseLevel::Realistic,
+        "harsh" => NoiseLevel::Harsh,
+        other => panic!("AWL_SWEEP_NOISE: {other} is not low, realistic or harsh"),
+    };
     let mut runs = Vec::new();
     let mut fuse_seconds = Vec::new();
     for seed in first..first + seeds {
         for shape in &shapes {
             let kind = scene(shape);
             let started = Instant::now();
-            let sim =
-                simulate(&SimParams { views, seed, fixed_base: true, ..SimParams::scan(kind) }).expect("simulate");
+            let sim = simulate(&SimParams { views, seed, noise, bare, fixed_base: true, ..SimParams::scan(kind) })
+                .expect("simulate");
             println!("simulated {shape} seed {seed} ({views} views) in {:.0} s", started.elapsed().as_secs_f64());
             let truth = sim.truth.ee_from_camera.expect("true hand-eye");
             for &case in &cases {

@@ -161,6 +161,7 @@ fn blank_report(index: usize, view: &std::result::Result<PreparedView, String>) 
         fitness: 0.0,
         inlier_rmse_mm: 0.0,
         conditioning: 0.0,
+        observed_conditioning: 0.0,
         unobserved: Vec::new(),
         converged: false,
         levels: Vec::new(),
@@ -172,6 +173,7 @@ fn record(report: &mut ViewReport, r: &IcpResult) {
     report.fitness = r.fitness;
     report.inlier_rmse_mm = r.inlier_rmse_m * 1e3;
     report.conditioning = r.conditioning;
+    report.observed_conditioning = r.observed_conditioning;
     report.converged = r.converged;
     report.levels = r.levels.clone();
 }

@@ -73,6 +73,11 @@ pub struct ViewReport {
     pub inlier_rmse_mm: f64,
     /// Conditioning of the final ICP system.
     pub conditioning: f64,
+    /// The weakest observed direction's information over the largest, on the surface's own
+    /// information (see `registration::icp`): how near the view came to leaving a direction
+    /// unobserved (`registration.icp.unobserved_ratio`).
+    #[serde(default)]
+    pub observed_conditioning: f64,
     /// The directions of motion the view's surface left unobserved against the model, held at the
     /// seed (see `registration::icp`); empty when every direction is observed.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

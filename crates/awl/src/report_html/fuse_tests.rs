@@ -32,6 +32,7 @@ fn view(index: usize, status: ViewStatus, correction_mm: f64) -> ViewReport {
         fitness: 0.9,
         inlier_rmse_mm: 0.7,
         conditioning: 10.0,
+        observed_conditioning: 10.0,
         unobserved: Vec::new(),
         converged: true,
         levels: vec![level(3.0), level(1.0)],
