@@ -77,26 +77,17 @@ impl Run {
 /// Each registered view's slide: its registered pose against the truth, relative to the anchor's
 /// (rotation deg, translation mm), `None` for views not registered.
 fn slides(sim: &Simulation, out: &FuseOutput) -> Vec<Option<(f64, f64)>> {
-    let views = &out.report.views;
-    let registered = |i: usize| {
-        let v = &views[i];
-        matches!(v.status, ViewStatus::Accepted | ViewStatus::Anchor)
-            .then(|| v.pose.as_ref().and_then(|rows| isometry_from_rows(rows).ok()))
-            .flatten()
-    };
-    let Some(anchor) = (0..views.len()).find(|&i| views[i].status == ViewStatus::Anchor) else {
-        return vec![None; views.len()];
-    };
-    let (Some(anchor_pose), Some(anchor_truth)) = (registered(anchor), sim.truth.views.get(anchor)) else {
-        return vec![None; views.len()];
+    let anchor = out.report.views.iter().position(|v| v.status == ViewStatus::Anchor);
+    let Some((Some(anchor_pose), Some(anchor_truth))) =
+        anchor.map(|a| (out.poses[a], sim.truth.views.get(a).map(|t| t.world_from_camera)))
+    else {
+        return vec![None; out.poses.len()];
     };
     // the fused world -> the true world, as the anchor puts it
-    let truth_from_fused = anchor_truth.world_from_camera * anchor_pose.inverse();
-    (0..views.len())
-        .map(|i| {
-            let pose = registered(i)?;
-            let truth = sim.truth.views.get(i)?.world_from_camera;
-            let (t, r) = pose_difference(&(truth_from_fused * pose), &truth);
+    let truth_from_fused = anchor_truth * anchor_pose.inverse();
+    (out.poses.iter().zip(&sim.truth.views))
+        .map(|(pose, truth)| {
+            let (t, r) = pose_difference(&(truth_from_fused * (*pose)?), &truth.world_from_camera);
             Some((r.to_degrees(), t * 1e3))
         })
         .collect()

@@ -73,9 +73,9 @@ pub struct ViewReport {
     pub inlier_rmse_mm: f64,
     /// Conditioning of the final ICP system.
     pub conditioning: f64,
-    /// The weakest observed direction's information over the largest, on the surface's own
-    /// information (see `registration::icp`): how near the view came to leaving a direction
-    /// unobserved (`registration.icp.unobserved_ratio`).
+    /// The smallest eigenvalue of the final ICP system over the directions it observed, over the
+    /// largest (`conditioning` when none is unobserved): how near the view came to leaving one more
+    /// direction unobserved (`registration.icp.unobserved_ratio`).
     #[serde(default)]
     pub observed_conditioning: f64,
     /// The directions of motion the view's surface left unobserved against the model, held at the
